@@ -1,0 +1,27 @@
+//! Environments for rdpg.
+//!
+//! - [`BipedalWalker`]: BipedalWalker-v3 / BipedalWalkerHardcore-v3, bit-identical to
+//!   Gymnasium 1.4 (same Box2D, same seeds, same observations and rewards).
+//! - [`Pendulum`]: Gymnasium's Pendulum-v1, and its partially observable variant with the
+//!   angular velocity hidden (the standard small memory task).
+//! - [`wrappers`]: time limit (the only source of `truncated`) and observation masks.
+//! - [`vector`]: N environments stepped on worker threads with auto-reset.
+//! - [`make`]: builds a registered environment by id, with its time limit.
+
+pub mod bipedal;
+pub mod pendulum;
+pub mod registry;
+pub mod vector;
+pub mod wrappers;
+
+pub use bipedal::{BipedalWalker, WalkerConfig, WalkerReward};
+pub use pendulum::Pendulum;
+pub use registry::{make, make_with, EnvOptions, ENV_IDS};
+pub use vector::VecEnv;
+pub use wrappers::{ObsMask, TimeLimit};
+
+/// An environment that can draw its current state as a [`rdpg_render::Scene`].
+pub trait Renderable {
+    /// The current frame.
+    fn scene(&self) -> rdpg_render::Scene;
+}

@@ -1,0 +1,109 @@
+//! Environment ids and the [`make`] factory (Gymnasium's `gym.make`).
+
+use crate::bipedal::{BipedalWalker, WalkerConfig, WalkerReward};
+use crate::wrappers::{ObsMask, TimeLimit};
+use crate::{Pendulum, Renderable};
+use rdpg_core::{Env, EnvError};
+
+/// Ids [`make`] knows.
+pub const ENV_IDS: [&str; 4] = [
+    "BipedalWalker-v3",
+    "BipedalWalkerHardcore-v3",
+    "Pendulum-v1",
+    "PendulumNoVel-v1",
+];
+
+/// An environment that can also be drawn: what [`make`] returns.
+pub trait AnyEnv: Env + Renderable {}
+impl<T: Env + Renderable> AnyEnv for T {}
+
+impl Renderable for Box<dyn AnyEnv> {
+    fn scene(&self) -> rdpg_render::Scene {
+        (**self).scene()
+    }
+}
+
+/// Options of [`make_with`]; the defaults give the registered environment unchanged.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EnvOptions {
+    /// Walkers only: which reward `step` pays.
+    pub reward: WalkerReward,
+    /// Observation components to hide (e.g. velocities), applied inside the time limit.
+    pub hide_obs: Vec<usize>,
+    /// Overrides the registered time limit.
+    pub max_episode_steps: Option<usize>,
+}
+
+/// Builds a registered environment with its time limit (1600 steps for BipedalWalker-v3, 2000
+/// for the hardcore version, 200 for the pendulums).
+pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
+    make_with(id, &EnvOptions::default())
+}
+
+/// [`make`] with options.
+pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvError> {
+    let inner: Box<dyn AnyEnv> = match id {
+        "BipedalWalker-v3" | "BipedalWalkerHardcore-v3" => {
+            Box::new(BipedalWalker::new(WalkerConfig {
+                hardcore: id == "BipedalWalkerHardcore-v3",
+                reward: opts.reward,
+            })?)
+        }
+        "Pendulum-v1" | "PendulumNoVel-v1" => {
+            if opts.reward != WalkerReward::Stock {
+                return Err(EnvError::Config(format!("{id} has no reward option")));
+            }
+            Box::new(Pendulum::new(id == "PendulumNoVel-v1"))
+        }
+        _ => return Err(EnvError::UnknownId(id.to_string(), ENV_IDS.join(", "))),
+    };
+    let limit = opts
+        .max_episode_steps
+        .or(inner.max_episode_steps())
+        .expect("registered envs have a time limit");
+    let masked: Box<dyn AnyEnv> = if opts.hide_obs.is_empty() {
+        inner
+    } else {
+        Box::new(ObsMask::hiding(inner, &opts.hide_obs)?)
+    };
+    Ok(Box::new(TimeLimit::new(masked, limit)?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids_and_limits() {
+        for id in ENV_IDS {
+            let env = make(id).unwrap();
+            assert_eq!(env.id(), id);
+        }
+        assert_eq!(
+            make("BipedalWalker-v3").unwrap().max_episode_steps(),
+            Some(1600)
+        );
+        assert_eq!(
+            make("BipedalWalkerHardcore-v3")
+                .unwrap()
+                .max_episode_steps(),
+            Some(2000)
+        );
+        assert_eq!(
+            make("PendulumNoVel-v1").unwrap().observation_space().dim(),
+            2
+        );
+        assert!(matches!(make("CartPole-v1"), Err(EnvError::UnknownId(..))));
+        let opts = EnvOptions {
+            hide_obs: vec![1, 2, 3],
+            ..Default::default()
+        };
+        assert_eq!(
+            make_with("BipedalWalker-v3", &opts)
+                .unwrap()
+                .observation_space()
+                .dim(),
+            21
+        );
+    }
+}

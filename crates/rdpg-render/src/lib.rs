@@ -1,0 +1,61 @@
+//! Pure-Rust 2-D rendering: a [`Scene`] of flat-coloured polygons and lines in pixel
+//! coordinates, rasterised to RGB frames, saved as PNG or animated GIF.
+//!
+//! [`rasterize`] turns a [`Scene`] into a [`Frame`] (anti-aliased, via `tiny-skia`);
+//! [`save_png`] writes one frame, [`GifWriter`] an endlessly looping animation, and
+//! [`downscale`] shrinks frames for smaller files. Everything is pure Rust.
+
+#![warn(missing_docs)]
+
+/// An RGB colour.
+pub type Rgb = [u8; 3];
+
+/// One drawable item, in image pixel coordinates (x right, y down).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Shape {
+    /// A filled polygon (convex or not), optionally outlined.
+    Polygon {
+        /// Vertices in order.
+        points: Vec<[f32; 2]>,
+        /// Fill colour.
+        fill: Rgb,
+        /// Outline colour, drawn 1 px wide.
+        outline: Option<Rgb>,
+    },
+    /// A line segment.
+    Line {
+        /// Start point.
+        from: [f32; 2],
+        /// End point.
+        to: [f32; 2],
+        /// Colour.
+        color: Rgb,
+        /// Width in pixels.
+        width: f32,
+    },
+}
+
+/// A frame to draw: background colour and shapes painted in order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Background colour.
+    pub background: Rgb,
+    /// Shapes, painted in order (later ones on top).
+    pub shapes: Vec<Shape>,
+}
+
+mod error;
+mod frame;
+mod gif_writer;
+mod png_io;
+mod raster;
+
+pub use error::RenderError;
+pub use frame::{downscale, Frame};
+pub use gif_writer::{GifWriter, MIN_DELAY_CS};
+pub use png_io::save_png;
+pub use raster::rasterize;
