@@ -1,1 +1,40 @@
-fn main() {}
+//! `rdpg`: the command-line front end of the rdpg framework.
+//!
+//! Subcommands: `rollout` (replay a fixed action sequence and print the trajectory as JSON
+//! lines), `render` (an episode to PNG frames and an animated GIF), `bench env` (environment
+//! throughput).
+
+mod bench;
+mod render;
+mod rollout;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// Recurrent deterministic policy gradients for legged robots on rough terrain.
+#[derive(Debug, Parser)]
+#[command(name = "rdpg", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Replay a fixed action sequence and print one JSON object per step.
+    Rollout(rollout::RolloutArgs),
+    /// Render an episode to an animated GIF (and optionally PNG frames).
+    Render(render::RenderArgs),
+    /// Measure throughput.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Rollout(a) => rollout::run(&a),
+        Command::Render(a) => render::run(&a),
+        Command::Bench(b) => bench::run(&b),
+    }
+}

@@ -311,7 +311,8 @@ impl BipedalWalker {
                     body_b: lower,
                     local_anchor_a: [0.0, (-LEG_H / 2.0) as f32],
                     local_anchor_b: [0.0, (LEG_H / 2.0) as f32],
-                    reference_angle: (angle as f64 - angle as f64) as f32,
+                    // bodyB.angle - bodyA.angle: both legs share `angle`.
+                    reference_angle: 0.0,
                     enable_limit: true,
                     lower_angle: -1.6,
                     upper_angle: -0.1,
@@ -542,6 +543,12 @@ impl Env for BipedalWalker {
     }
 }
 
+impl crate::Renderable for BipedalWalker {
+    fn scene(&self) -> rdpg_render::Scene {
+        self.scene_parts().scene()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -607,11 +614,5 @@ mod tests {
             assert!(s.info.stock_reward.is_some());
         }
         panic!("the walker never fell");
-    }
-}
-
-impl crate::Renderable for BipedalWalker {
-    fn scene(&self) -> rdpg_render::Scene {
-        self.scene_parts().scene()
     }
 }

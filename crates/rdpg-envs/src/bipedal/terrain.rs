@@ -9,6 +9,9 @@ use rdpg_box2d::{BodyKind, FixtureDef, PhysicsError, World};
 use rdpg_core::rng::NpRng;
 
 const FRICTION: f32 = 2.5;
+/// Gymnasium draws clouds with `3.14`, not π: keep it for identical cloud shapes.
+#[allow(clippy::approx_constant)]
+const GYM_PI: f64 = 3.14;
 
 /// Terrain states of the generator.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -205,10 +208,10 @@ pub(crate) fn draw_clouds(rng: &mut NpRng, terrain: &mut Terrain) {
             .map(|a| {
                 let a = a as f64;
                 let px = x
-                    + 15.0 * TERRAIN_STEP * (3.14 * 2.0 * a / 5.0).sin()
+                    + 15.0 * TERRAIN_STEP * (GYM_PI * 2.0 * a / 5.0).sin()
                     + rng.uniform(0.0, 5.0 * TERRAIN_STEP);
                 let py = y
-                    + 5.0 * TERRAIN_STEP * (3.14 * 2.0 * a / 5.0).cos()
+                    + 5.0 * TERRAIN_STEP * (GYM_PI * 2.0 * a / 5.0).cos()
                     + rng.uniform(0.0, 5.0 * TERRAIN_STEP);
                 [px, py]
             })

@@ -1,0 +1,180 @@
+//! `rdpg render`: an episode to an animated GIF (and optionally PNG frames).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use rdpg_core::rng::NpRng;
+use rdpg_envs::Renderable;
+use rdpg_render::{downscale, rasterize, save_png, GifWriter};
+
+/// Which actions drive the rendered episode.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum Policy {
+    /// Uniform random actions.
+    Random,
+    /// All-zero actions.
+    Zeros,
+}
+
+/// Arguments of `rdpg render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Environment id.
+    #[arg(long, default_value = "BipedalWalker-v3")]
+    env: String,
+    /// Seed of the episode.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Actions.
+    #[arg(long, value_enum, default_value_t = Policy::Random)]
+    policy: Policy,
+    /// Stop after this many steps even if the episode goes on.
+    #[arg(long)]
+    max_steps: Option<usize>,
+    /// Output GIF.
+    #[arg(long)]
+    gif: PathBuf,
+    /// Also write every rendered frame as PNG into this directory.
+    #[arg(long)]
+    png_dir: Option<PathBuf>,
+    /// Render every k-th step (GIF plays at 50/k fps, i.e. real time).
+    #[arg(long, default_value_t = 2)]
+    every: usize,
+    /// Downscale frames by this factor (1 = full 600x400).
+    #[arg(long, default_value_t = 1)]
+    scale_down: u32,
+}
+
+/// Runs `rdpg render` with a fixed policy.
+pub fn run(args: &RenderArgs) -> Result<()> {
+    let mut env = rdpg_envs::make(&args.env)?;
+    let dim = env.action_space().dim();
+    let (lo, hi) = (
+        env.action_space().low.clone(),
+        env.action_space().high.clone(),
+    );
+    let mut rng = NpRng::from_seed(args.seed.wrapping_add(1_000_003));
+    let policy = args.policy;
+    let summary = render_episode(
+        &mut env,
+        args.seed,
+        |_obs| match policy {
+            Policy::Random => (0..dim)
+                .map(|i| rng.uniform(lo[i] as f64, hi[i] as f64) as f32)
+                .collect(),
+            Policy::Zeros => vec![0.0; dim],
+        },
+        &RenderTarget {
+            gif: args.gif.clone(),
+            png_dir: args.png_dir.clone(),
+            every: args.every.max(1),
+            scale_down: args.scale_down.max(1),
+            max_steps: args.max_steps,
+        },
+    )?;
+    println!(
+        "{} seed {}: return {:.3} over {} steps ({}), {} frames -> {}",
+        args.env,
+        args.seed,
+        summary.ret,
+        summary.steps,
+        summary.ending,
+        summary.frames,
+        args.gif.display()
+    );
+    Ok(())
+}
+
+/// Where and how to write frames.
+pub struct RenderTarget {
+    /// Output GIF.
+    pub gif: PathBuf,
+    /// Optional PNG directory.
+    pub png_dir: Option<PathBuf>,
+    /// Render every k-th step.
+    pub every: usize,
+    /// Downscale factor.
+    pub scale_down: u32,
+    /// Step cap.
+    pub max_steps: Option<usize>,
+}
+
+/// What happened in a rendered episode.
+pub struct EpisodeSummary {
+    /// Sum of rewards.
+    pub ret: f64,
+    /// Steps taken.
+    pub steps: usize,
+    /// "terminated", "truncated" or "stopped".
+    pub ending: &'static str,
+    /// Frames written.
+    pub frames: u64,
+}
+
+/// Plays one episode with `policy`, writing frames to `target`.
+pub fn render_episode<E, P>(
+    env: &mut E,
+    seed: u64,
+    mut policy: P,
+    target: &RenderTarget,
+) -> Result<EpisodeSummary>
+where
+    E: rdpg_core::Env + Renderable,
+    P: FnMut(&[f32]) -> Vec<f32>,
+{
+    let (mut obs, _) = env.reset(Some(seed))?;
+    let first = env.scene();
+    let (w, h) = (
+        first.width.div_ceil(target.scale_down),
+        first.height.div_ceil(target.scale_down),
+    );
+    let fps = 50.0 / target.every as f32;
+    if let Some(dir) = &target.png_dir {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let mut gif = GifWriter::create(&target.gif, w, h, fps)?;
+    let mut write = |scene: &rdpg_render::Scene, k: usize| -> Result<()> {
+        let mut frame = rasterize(scene);
+        if target.scale_down > 1 {
+            frame = downscale(&frame, target.scale_down);
+        }
+        if let Some(dir) = &target.png_dir {
+            save_png(&frame, &dir.join(format!("frame_{k:05}.png")))?;
+        }
+        gif.push(&frame)?;
+        Ok(())
+    };
+    write(&first, 0)?;
+    let (mut ret, mut steps, mut ending) = (0.0, 0, "stopped");
+    loop {
+        if target.max_steps.is_some_and(|m| steps >= m) {
+            break;
+        }
+        let action = policy(&obs);
+        let s = env.step(&action)?;
+        steps += 1;
+        ret += s.reward;
+        let done = s.done();
+        obs = s.obs;
+        if steps % target.every == 0 || done {
+            write(&env.scene(), steps)?;
+        }
+        if done {
+            ending = if s.terminated {
+                "terminated"
+            } else {
+                "truncated"
+            };
+            break;
+        }
+    }
+    let frames = gif.frames();
+    gif.finish()?;
+    Ok(EpisodeSummary {
+        ret,
+        steps,
+        ending,
+        frames,
+    })
+}
