@@ -1,14 +1,31 @@
 //! Core abstractions of rdpg: the [`Env`] trait with Gymnasium semantics, observation and
-//! action [`spaces`], and the error type shared by environment implementations.
+//! action [`spaces`], the error type shared by environment implementations, the episodic
+//! [`replay`] buffer and the [`SequenceBatch`] it samples, exploration [`noise`], and the
+//! reference critic [`targets`] of the paper.
 //!
 //! This crate deliberately knows nothing about tensors or physics: it is the vocabulary the
 //! environments (`rdpg-envs`) and the learners (`rdpg-agents`) share.
 
+pub mod batch;
 pub mod env;
 pub mod error;
+pub mod noise;
+pub mod replay;
 pub mod rng;
 pub mod spaces;
+pub mod targets;
 
+pub use batch::SequenceBatch;
 pub use env::{Env, EnvInfo, Step};
 pub use error::EnvError;
+pub use noise::{
+    action_distance, ActionNoise, AdaptiveParamNoise, Gaussian, OrnsteinUhlenbeck, OuConfig,
+    ParamNoiseConfig,
+};
+pub use replay::{Episode, EpisodicReplay, ReplayConfig, ReplayError};
+pub use rng::NpRng;
 pub use spaces::BoxSpace;
+pub use targets::{
+    batch_tail_bootstrap_targets, critic_loss_reference, interpolated_td_weights,
+    interpolated_td_weights_padded, tail_bootstrap_targets,
+};

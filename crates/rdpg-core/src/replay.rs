@@ -1,0 +1,1331 @@
+//! Episodic experience replay (Song et al. 2018, Sec. II-C and III-D).
+//!
+//! The buffer keeps whole episodes, FIFO by episode, and samples fixed-shape windows
+//! ([`SequenceBatch`]) that never cross an episode boundary: `scan` burn-in steps before a
+//! start `t` (clipped at the episode start, left-padded) and `opt` optimisation steps from `t`
+//! (right-padded when the episode is shorter than `opt`), plus the bootstrap observation after
+//! the last real step.
+//!
+//! # Storage
+//!
+//! Each episode of `n` transitions is stored compactly as flat `f32` vectors: `n + 1`
+//! observations (the final `next_obs` included), `n` actions, `n` rewards, optionally `n`
+//! acting-time recurrent states (the state *before* step `t`), the `terminated` / `truncated`
+//! flags of its last transition and whether it was injected (teacher experience).
+//!
+//! Agent and injected episodes are kept in two FIFO queues; a global insertion sequence number
+//! orders them, so eviction is "oldest closed episode first" across both, in O(1) amortised.
+//!
+//! # Sampling
+//!
+//! A *position* is a pair (episode, start `t`). An episode of `n_e` transitions has the starts
+//! `0 ..= n_e - opt` when `n_e >= opt`, and the single start `0` (with `opt_len = n_e`)
+//! otherwise. Windows are drawn uniformly over all positions, so an episode is picked with
+//! probability proportional to its number of starts. Per pool, a prefix-sum index over the
+//! episodes' start counts (keyed by `opt`) is kept in an internal cache, extended and trimmed
+//! incrementally as episodes come and go and rebuilt only when `opt` changes; each draw is
+//! one `integers` draw plus a binary search.
+
+use std::collections::VecDeque;
+use std::sync::{Mutex, MutexGuard};
+
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use thiserror::Error;
+
+use crate::batch::SequenceBatch;
+use crate::rng::NpRng;
+
+/// Default cap on the share of the capacity that injected episodes may occupy.
+pub const DEFAULT_MAX_INJECTED_FRACTION: f64 = 0.5;
+
+fn default_max_injected_fraction() -> f64 {
+    DEFAULT_MAX_INJECTED_FRACTION
+}
+
+/// Sizes and limits of an [`EpisodicReplay`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ReplayConfig {
+    /// Capacity in transitions (closed episodes plus the open one).
+    pub capacity: usize,
+    /// Observation size.
+    pub obs_dim: usize,
+    /// Action size.
+    pub act_dim: usize,
+    /// Size of the stored acting-time recurrent state; 0 stores none.
+    #[serde(default)]
+    pub state_dim: usize,
+    /// Injected (teacher) transitions may fill at most this fraction of `capacity`
+    /// (default [`DEFAULT_MAX_INJECTED_FRACTION`]); in `[0, 1]`.
+    #[serde(default = "default_max_injected_fraction")]
+    pub max_injected_fraction: f64,
+}
+
+impl ReplayConfig {
+    /// A configuration without stored states and the default injected fraction.
+    pub fn new(capacity: usize, obs_dim: usize, act_dim: usize) -> Self {
+        Self {
+            capacity,
+            obs_dim,
+            act_dim,
+            state_dim: 0,
+            max_injected_fraction: DEFAULT_MAX_INJECTED_FRACTION,
+        }
+    }
+
+    /// The same configuration storing recurrent states of `state_dim` values.
+    pub fn with_state_dim(mut self, state_dim: usize) -> Self {
+        self.state_dim = state_dim;
+        self
+    }
+
+    /// The same configuration with another cap on injected transitions.
+    pub fn with_max_injected_fraction(mut self, fraction: f64) -> Self {
+        self.max_injected_fraction = fraction;
+        self
+    }
+
+    /// Largest number of injected transitions allowed: `floor(fraction * capacity)`.
+    pub fn max_injected_transitions(&self) -> usize {
+        (self.max_injected_fraction * self.capacity as f64).floor() as usize
+    }
+
+    /// Checks that capacity and sizes are positive and the fraction lies in `[0, 1]`.
+    pub fn validate(&self) -> Result<(), ReplayError> {
+        if self.capacity == 0 {
+            return Err(ReplayError::Config("capacity must be positive".into()));
+        }
+        if self.obs_dim == 0 || self.act_dim == 0 {
+            return Err(ReplayError::Config(
+                "obs_dim and act_dim must be positive".into(),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.max_injected_fraction) {
+            return Err(ReplayError::Config(format!(
+                "max_injected_fraction must be in [0, 1] (got {})",
+                self.max_injected_fraction
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// What the replay buffer rejects.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum ReplayError {
+    /// Invalid configuration.
+    #[error("invalid replay configuration: {0}")]
+    Config(String),
+    /// An array does not have the size the configuration implies.
+    #[error("{what} has {got} values, expected {expected}")]
+    Dimension {
+        /// Which array.
+        what: &'static str,
+        /// Values expected.
+        expected: usize,
+        /// Values given.
+        got: usize,
+    },
+    /// An episode without any transition.
+    #[error("an episode needs at least one transition")]
+    EmptyEpisode,
+    /// An injected episode longer than the injected quota of the buffer.
+    #[error("injected episode of {len} transitions exceeds the injected quota of {limit}")]
+    InjectedTooLong {
+        /// Transitions in the episode.
+        len: usize,
+        /// `floor(max_injected_fraction * capacity)`.
+        limit: usize,
+    },
+    /// A deserialised buffer is inconsistent.
+    #[error("corrupt replay buffer: {0}")]
+    Corrupt(String),
+}
+
+/// One whole episode (or the open one), stored flat.
+///
+/// With `n = rewards.len()` transitions: `obs` holds `(n + 1) * obs_dim` values (the final
+/// `next_obs` last), `actions` `n * act_dim`, `states` either `n * state_dim` values (the
+/// acting-time recurrent state *before* each step) or nothing (read as zeros, the paper's
+/// `h_init`). The flags describe the last transition only; an episode with neither flag set
+/// is treated like a truncation (its tail bootstraps).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Episode {
+    /// `[n + 1, obs_dim]` observations.
+    pub obs: Vec<f32>,
+    /// `[n, act_dim]` actions.
+    pub actions: Vec<f32>,
+    /// `[n]` rewards.
+    pub rewards: Vec<f32>,
+    /// `[n, state_dim]` acting-time recurrent states, or empty.
+    pub states: Vec<f32>,
+    /// The last transition ended the episode by termination.
+    pub terminated: bool,
+    /// The last transition ended the episode by truncation (time limit).
+    pub truncated: bool,
+    /// Injected (teacher) experience rather than the agent's own.
+    pub injected: bool,
+}
+
+impl Episode {
+    /// Number of transitions.
+    pub fn len(&self) -> usize {
+        self.rewards.len()
+    }
+
+    /// True when the episode has no transition.
+    pub fn is_empty(&self) -> bool {
+        self.rewards.is_empty()
+    }
+
+    fn check(&self, config: &ReplayConfig) -> Result<(), ReplayError> {
+        let n = self.len();
+        if n == 0 {
+            return Err(ReplayError::EmptyEpisode);
+        }
+        let dim = |what, expected: usize, got: usize| {
+            if expected == got {
+                Ok(())
+            } else {
+                Err(ReplayError::Dimension {
+                    what,
+                    expected,
+                    got,
+                })
+            }
+        };
+        dim("episode obs", (n + 1) * config.obs_dim, self.obs.len())?;
+        dim("episode actions", n * config.act_dim, self.actions.len())?;
+        if !self.states.is_empty() {
+            dim("episode states", n * config.state_dim, self.states.len())?;
+        }
+        Ok(())
+    }
+}
+
+/// A closed episode with its insertion sequence number.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Stored {
+    seq: u64,
+    episode: Episode,
+}
+
+/// Everything that is checkpointed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Store {
+    config: ReplayConfig,
+    next_seq: u64,
+    agent: VecDeque<Stored>,
+    injected: VecDeque<Stored>,
+    open: Option<Episode>,
+}
+
+/// Number of window starts of an episode of `len` transitions for `opt` steps.
+fn starts(len: usize, opt: usize) -> u64 {
+    if len >= opt {
+        (len - opt + 1) as u64
+    } else {
+        1
+    }
+}
+
+/// Prefix sums of the start counts of one pool, for one `opt`.
+#[derive(Debug, Default)]
+struct PoolIndex {
+    opt: usize,
+    /// `(seq, absolute cumulative starts through this episode, starts of this episode)`,
+    /// aligned with the pool's episodes.
+    entries: VecDeque<(u64, u64, u64)>,
+}
+
+impl PoolIndex {
+    fn sync(&mut self, pool: &VecDeque<Stored>, opt: usize) {
+        if self.opt != opt {
+            self.entries.clear();
+            self.opt = opt;
+        }
+        let front_seq = pool.front().map(|e| e.seq);
+        while let Some(&(seq, _, _)) = self.entries.front() {
+            if front_seq.is_none_or(|f| seq < f) {
+                self.entries.pop_front();
+            } else {
+                break;
+            }
+        }
+        if self.entries.len() > pool.len()
+            || self
+                .entries
+                .back()
+                .is_some_and(|e| e.0 != pool[self.entries.len() - 1].seq)
+        {
+            // Cannot happen with FIFO pools; rebuild rather than trust a stale index.
+            self.entries.clear();
+        }
+        let mut cum = self.entries.back().map_or(0, |e| e.1);
+        for ep in pool.iter().skip(self.entries.len()) {
+            let c = starts(ep.episode.len(), opt);
+            cum += c;
+            self.entries.push_back((ep.seq, cum, c));
+        }
+    }
+
+    fn total(&self) -> u64 {
+        match (self.entries.front(), self.entries.back()) {
+            (Some(f), Some(b)) => b.1 - (f.1 - f.2),
+            _ => 0,
+        }
+    }
+
+    /// The episode index and start of position `u` in `0 .. total()`.
+    fn locate(&self, u: u64) -> (usize, usize) {
+        let f = self.entries[0];
+        let abs = f.1 - f.2 + u;
+        let i = self.entries.partition_point(|e| e.1 <= abs);
+        let e = self.entries[i];
+        (i, (abs - (e.1 - e.2)) as usize)
+    }
+}
+
+/// The sampling caches of both pools (agent, injected).
+#[derive(Debug, Default)]
+struct Index {
+    agent: PoolIndex,
+    injected: PoolIndex,
+}
+
+/// Episodic replay buffer with whole-episode FIFO eviction, uniform window sampling and
+/// experience injection.
+///
+/// Serialises (serde) to its configuration, episodes and open episode; the sampling cache
+/// is rebuilt on demand, so a restored buffer draws exactly the same windows from the same
+/// generator state.
+#[derive(Debug)]
+pub struct EpisodicReplay {
+    store: Store,
+    agent_transitions: usize,
+    injected_transitions: usize,
+    index: Mutex<Index>,
+}
+
+impl Clone for EpisodicReplay {
+    fn clone(&self) -> Self {
+        Self {
+            store: self.store.clone(),
+            agent_transitions: self.agent_transitions,
+            injected_transitions: self.injected_transitions,
+            index: Mutex::default(),
+        }
+    }
+}
+
+impl PartialEq for EpisodicReplay {
+    /// Same configuration, episodes (with their order) and open episode.
+    fn eq(&self, other: &Self) -> bool {
+        self.store == other.store
+    }
+}
+
+impl Serialize for EpisodicReplay {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        self.store.serialize(serializer)
+    }
+}
+
+impl<'de> Deserialize<'de> for EpisodicReplay {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let store = Store::deserialize(deserializer)?;
+        Self::from_store(store).map_err(serde::de::Error::custom)
+    }
+}
+
+impl EpisodicReplay {
+    /// An empty buffer.
+    pub fn new(config: ReplayConfig) -> Result<Self, ReplayError> {
+        config.validate()?;
+        Ok(Self {
+            store: Store {
+                config,
+                next_seq: 0,
+                agent: VecDeque::new(),
+                injected: VecDeque::new(),
+                open: None,
+            },
+            agent_transitions: 0,
+            injected_transitions: 0,
+            index: Mutex::default(),
+        })
+    }
+
+    fn from_store(store: Store) -> Result<Self, ReplayError> {
+        store.config.validate()?;
+        let corrupt = |m: String| Err(ReplayError::Corrupt(m));
+        let mut totals = [0usize; 2];
+        for (p, (pool, injected)) in [(&store.agent, false), (&store.injected, true)]
+            .into_iter()
+            .enumerate()
+        {
+            let mut last: Option<u64> = None;
+            for s in pool {
+                s.episode.check(&store.config)?;
+                if s.episode.injected != injected {
+                    return corrupt(format!("episode {} is in the wrong pool", s.seq));
+                }
+                if last.is_some_and(|l| s.seq <= l) || s.seq >= store.next_seq {
+                    return corrupt(format!("episode sequence number {} out of order", s.seq));
+                }
+                last = Some(s.seq);
+                totals[p] += s.episode.len();
+            }
+        }
+        if let Some(open) = &store.open {
+            open.check(&store.config)?;
+            if open.injected || open.terminated || open.truncated {
+                return corrupt("the open episode is flagged closed or injected".into());
+            }
+        }
+        Ok(Self {
+            store,
+            agent_transitions: totals[0],
+            injected_transitions: totals[1],
+            index: Mutex::default(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ReplayConfig {
+        &self.store.config
+    }
+
+    /// Transitions held: closed episodes plus the open one (what the capacity counts).
+    pub fn len_transitions(&self) -> usize {
+        self.agent_transitions + self.injected_transitions + self.open_len()
+    }
+
+    /// True when the buffer holds no transition at all.
+    pub fn is_empty(&self) -> bool {
+        self.len_transitions() == 0
+    }
+
+    /// Transitions in injected episodes.
+    pub fn injected_transitions(&self) -> usize {
+        self.injected_transitions
+    }
+
+    /// Transitions of the open (not yet sampleable) episode.
+    pub fn open_len(&self) -> usize {
+        self.store.open.as_ref().map_or(0, Episode::len)
+    }
+
+    /// Closed (sampleable) episodes, agent and injected.
+    pub fn num_episodes(&self) -> usize {
+        self.store.agent.len() + self.store.injected.len()
+    }
+
+    /// Closed injected episodes.
+    pub fn num_injected_episodes(&self) -> usize {
+        self.store.injected.len()
+    }
+
+    /// The closed episodes, oldest first (agent and injected interleaved by insertion).
+    pub fn episodes(&self) -> Vec<&Episode> {
+        let mut all: Vec<&Stored> = self
+            .store
+            .agent
+            .iter()
+            .chain(self.store.injected.iter())
+            .collect();
+        all.sort_by_key(|s| s.seq);
+        all.into_iter().map(|s| &s.episode).collect()
+    }
+
+    /// The open episode, if a step has been pushed since the last episode end.
+    pub fn open_episode(&self) -> Option<&Episode> {
+        self.store.open.as_ref()
+    }
+
+    /// Drops every episode, the open one included.
+    pub fn clear(&mut self) {
+        self.store.agent.clear();
+        self.store.injected.clear();
+        self.store.open = None;
+        self.agent_transitions = 0;
+        self.injected_transitions = 0;
+        *self.index_lock() = Index::default();
+    }
+
+    /// Number of sampleable positions for `opt` optimisation steps (agent and injected).
+    pub fn num_positions(&self, opt: usize) -> u64 {
+        let mut index = self.index_lock();
+        index.agent.sync(&self.store.agent, opt);
+        index.injected.sync(&self.store.injected, opt);
+        index.agent.total() + index.injected.total()
+    }
+
+    /// Appends one transition of the agent's own experience to the open episode (starting
+    /// one if needed). `obs` is used only for the first step of an episode; later steps
+    /// continue from the previous `next_obs`. `state` is the acting-time recurrent state
+    /// before this step; it must have `state_dim` values when given, and is stored as zeros
+    /// when `None` (ignored when `state_dim == 0`). When `terminated || truncated` the
+    /// episode closes and becomes sampleable. Oldest closed episodes are evicted while the
+    /// buffer is over capacity. A rejected step (wrong sizes) stores nothing.
+    #[allow(clippy::too_many_arguments)] // one argument per field of a Gymnasium step
+    pub fn push(
+        &mut self,
+        obs: &[f32],
+        action: &[f32],
+        reward: f32,
+        next_obs: &[f32],
+        terminated: bool,
+        truncated: bool,
+        state: Option<&[f32]>,
+    ) -> Result<(), ReplayError> {
+        let cfg = self.store.config;
+        let dim = |what, expected: usize, got: usize| {
+            if expected == got {
+                Ok(())
+            } else {
+                Err(ReplayError::Dimension {
+                    what,
+                    expected,
+                    got,
+                })
+            }
+        };
+        dim("obs", cfg.obs_dim, obs.len())?;
+        dim("action", cfg.act_dim, action.len())?;
+        dim("next_obs", cfg.obs_dim, next_obs.len())?;
+        if let Some(s) = state {
+            if cfg.state_dim > 0 || !s.is_empty() {
+                dim("state", cfg.state_dim, s.len())?;
+            }
+        }
+        let ep = self.store.open.get_or_insert_with(|| Episode {
+            obs: obs.to_vec(),
+            ..Episode::default()
+        });
+        ep.obs.extend_from_slice(next_obs);
+        ep.actions.extend_from_slice(action);
+        ep.rewards.push(reward);
+        if cfg.state_dim > 0 {
+            match state {
+                Some(s) => ep.states.extend_from_slice(s),
+                None => ep.states.resize(ep.states.len() + cfg.state_dim, 0.0),
+            }
+        }
+        if terminated || truncated {
+            let mut ep = self.store.open.take().expect("open episode");
+            ep.terminated = terminated;
+            ep.truncated = truncated;
+            self.insert_closed(ep);
+        } else {
+            self.evict_over_capacity();
+        }
+        Ok(())
+    }
+
+    /// Adds a whole closed episode (e.g. a teacher trajectory when `episode.injected`).
+    ///
+    /// When `state_dim > 0`, `states` may be empty (read as zeros, e.g. for a teacher with
+    /// another network); when `state_dim == 0` any states are dropped. Adding an injected
+    /// episode first evicts the oldest injected episodes until the injected transitions fit
+    /// in `floor(max_injected_fraction * capacity)`; then the oldest closed episodes are
+    /// evicted while the buffer is over capacity. The open episode is left alone.
+    pub fn add_episode(&mut self, mut episode: Episode) -> Result<(), ReplayError> {
+        let cfg = self.store.config;
+        if cfg.state_dim == 0 {
+            episode.states = Vec::new();
+        }
+        episode.check(&cfg)?;
+        if episode.injected {
+            let limit = cfg.max_injected_transitions();
+            let len = episode.len();
+            if len > limit {
+                return Err(ReplayError::InjectedTooLong { len, limit });
+            }
+            while self.injected_transitions + len > limit {
+                let old = self
+                    .store
+                    .injected
+                    .pop_front()
+                    .expect("injected transitions counted without an injected episode");
+                self.injected_transitions -= old.episode.len();
+            }
+        }
+        self.insert_closed(episode);
+        Ok(())
+    }
+
+    fn insert_closed(&mut self, episode: Episode) {
+        let seq = self.store.next_seq;
+        self.store.next_seq += 1;
+        let len = episode.len();
+        let stored = Stored { seq, episode };
+        if stored.episode.injected {
+            self.injected_transitions += len;
+            self.store.injected.push_back(stored);
+        } else {
+            self.agent_transitions += len;
+            self.store.agent.push_back(stored);
+        }
+        self.evict_over_capacity();
+    }
+
+    /// Evicts the oldest closed episodes while over capacity. The open episode is never
+    /// evicted, nor the newest closed episode when no step is open: capacity is exceeded only
+    /// by a buffer holding one single episode longer than the capacity.
+    fn evict_over_capacity(&mut self) {
+        while self.len_transitions() > self.store.config.capacity {
+            let closed = self.num_episodes();
+            if closed == 0 || (closed == 1 && self.open_len() == 0) {
+                break;
+            }
+            let from_agent = match (self.store.agent.front(), self.store.injected.front()) {
+                (Some(a), Some(i)) => a.seq < i.seq,
+                (Some(_), None) => true,
+                _ => false,
+            };
+            if from_agent {
+                let old = self.store.agent.pop_front().expect("agent episode");
+                self.agent_transitions -= old.episode.len();
+            } else {
+                let old = self.store.injected.pop_front().expect("injected episode");
+                self.injected_transitions -= old.episode.len();
+            }
+        }
+    }
+
+    fn index_lock(&self) -> MutexGuard<'_, Index> {
+        // The index is a cache that `sync` repairs, so a poisoned lock is still usable.
+        self.index.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Draws `n` windows uniformly over all positions of the closed episodes (agent and
+    /// injected alike; see the [module docs](self)). Returns `None` when no episode is
+    /// closed.
+    ///
+    /// # Panics
+    ///
+    /// If `opt == 0`.
+    pub fn sample(
+        &self,
+        rng: &mut NpRng,
+        n: usize,
+        scan: usize,
+        opt: usize,
+    ) -> Option<SequenceBatch> {
+        assert!(opt > 0, "sample: opt must be at least 1");
+        let mut index = self.index_lock();
+        index.agent.sync(&self.store.agent, opt);
+        index.injected.sync(&self.store.injected, opt);
+        let (ta, ti) = (index.agent.total(), index.injected.total());
+        let total = ta + ti;
+        if total == 0 {
+            return None;
+        }
+        let mut batch = self.empty_batch(n, scan, opt);
+        let high = i64::try_from(total).expect("position count fits in i64");
+        for w in 0..n {
+            let u = rng.integers(0, high) as u64;
+            let (pool, idx, u) = if u < ta {
+                (&self.store.agent, &index.agent, u)
+            } else {
+                (&self.store.injected, &index.injected, u - ta)
+            };
+            let (e, t) = idx.locate(u);
+            self.write_window(&mut batch, w, &pool[e].episode, t);
+        }
+        Some(batch)
+    }
+
+    /// Draws `round(n * injected_share)` windows uniformly over the positions of injected
+    /// episodes (first in the batch) and the rest uniformly over the agent's own episodes.
+    /// If one pool is empty every window comes from the other. Returns `None` when no
+    /// episode is closed. Annealing the share towards 0 over training is up to the caller.
+    ///
+    /// # Panics
+    ///
+    /// If `opt == 0` or `injected_share` is not in `[0, 1]`.
+    pub fn sample_mixed(
+        &self,
+        rng: &mut NpRng,
+        n: usize,
+        scan: usize,
+        opt: usize,
+        injected_share: f64,
+    ) -> Option<SequenceBatch> {
+        assert!(opt > 0, "sample_mixed: opt must be at least 1");
+        assert!(
+            (0.0..=1.0).contains(&injected_share),
+            "sample_mixed: injected_share must be in [0, 1] (got {injected_share})"
+        );
+        let mut index = self.index_lock();
+        index.agent.sync(&self.store.agent, opt);
+        index.injected.sync(&self.store.injected, opt);
+        let (ta, ti) = (index.agent.total(), index.injected.total());
+        let n_injected = match (ta, ti) {
+            (0, 0) => return None,
+            (0, _) => n,
+            (_, 0) => 0,
+            _ => ((n as f64 * injected_share).round() as usize).min(n),
+        };
+        let mut batch = self.empty_batch(n, scan, opt);
+        for w in 0..n {
+            let (pool, idx, total) = if w < n_injected {
+                (&self.store.injected, &index.injected, ti)
+            } else {
+                (&self.store.agent, &index.agent, ta)
+            };
+            let high = i64::try_from(total).expect("position count fits in i64");
+            let u = rng.integers(0, high) as u64;
+            let (e, t) = idx.locate(u);
+            self.write_window(&mut batch, w, &pool[e].episode, t);
+        }
+        Some(batch)
+    }
+
+    fn empty_batch(&self, n: usize, scan: usize, opt: usize) -> SequenceBatch {
+        let cfg = &self.store.config;
+        let steps = scan + opt;
+        SequenceBatch {
+            n,
+            scan,
+            opt,
+            obs_dim: cfg.obs_dim,
+            act_dim: cfg.act_dim,
+            obs: vec![0.0; n * (steps + 1) * cfg.obs_dim],
+            actions: vec![0.0; n * steps * cfg.act_dim],
+            rewards: vec![0.0; n * steps],
+            mask: vec![0.0; n * steps],
+            scan_len: vec![0; n],
+            opt_len: vec![0; n],
+            tail_terminated: vec![0.0; n],
+            injected: vec![0.0; n],
+            stored_state: (cfg.state_dim > 0).then(|| vec![0.0; n * cfg.state_dim]),
+            state_dim: cfg.state_dim,
+        }
+    }
+
+    /// Copies the window of `ep` starting at `t` into slot `w` of `b`. The real steps
+    /// `t - scan_len .. t + opt_len` are contiguous both in the episode and in the window
+    /// (from slot `scan - scan_len`), so each array is one copy.
+    fn write_window(&self, b: &mut SequenceBatch, w: usize, ep: &Episode, t: usize) {
+        let (od, ad, sd) = (b.obs_dim, b.act_dim, b.state_dim);
+        let (scan, opt) = (b.scan, b.opt);
+        let steps = scan + opt;
+        let n_e = ep.len();
+        let scan_len = scan.min(t);
+        let opt_len = opt.min(n_e - t);
+        let first = t - scan_len;
+        let real = scan_len + opt_len;
+        let slot0 = scan - scan_len;
+
+        let o = (w * (steps + 1) + slot0) * od;
+        b.obs[o..o + (real + 1) * od].copy_from_slice(&ep.obs[first * od..(first + real + 1) * od]);
+        let a = (w * steps + slot0) * ad;
+        b.actions[a..a + real * ad].copy_from_slice(&ep.actions[first * ad..(first + real) * ad]);
+        let r = w * steps + slot0;
+        b.rewards[r..r + real].copy_from_slice(&ep.rewards[first..first + real]);
+        b.mask[r..r + real].fill(1.0);
+        b.scan_len[w] = scan_len;
+        b.opt_len[w] = opt_len;
+        b.tail_terminated[w] = if ep.terminated && t + opt_len == n_e {
+            1.0
+        } else {
+            0.0
+        };
+        b.injected[w] = if ep.injected { 1.0 } else { 0.0 };
+        if let Some(states) = b.stored_state.as_mut() {
+            if !ep.states.is_empty() {
+                states[w * sd..(w + 1) * sd]
+                    .copy_from_slice(&ep.states[first * sd..(first + 1) * sd]);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Value stored for episode `id`, step `k`: distinct, non-zero, exact in f32.
+    fn code(id: usize, k: usize) -> f32 {
+        (id * 1000 + k + 1) as f32
+    }
+
+    fn decode(v: f32) -> (usize, usize) {
+        let x = v as usize - 1;
+        (x / 1000, x % 1000)
+    }
+
+    const OD: usize = 2;
+    const AD: usize = 1;
+    const SD: usize = 3;
+
+    /// An episode whose every value encodes (id, step): obs component `c` of step `k` is
+    /// `code(id, k) + 0.25 c`, actions `-code`, rewards `code`, states `code + 0.5 c`.
+    fn coded_episode(id: usize, len: usize, terminated: bool, injected: bool) -> Episode {
+        let mut ep = Episode {
+            terminated,
+            truncated: !terminated,
+            injected,
+            ..Episode::default()
+        };
+        for k in 0..=len {
+            for c in 0..OD {
+                ep.obs.push(code(id, k) + 0.25 * c as f32);
+            }
+        }
+        for k in 0..len {
+            ep.actions.push(-code(id, k));
+            ep.rewards.push(code(id, k));
+            for c in 0..SD {
+                ep.states.push(code(id, k) + 0.5 * c as f32);
+            }
+        }
+        ep
+    }
+
+    /// Pushes `len` steps of a coded agent episode; closes it unless `close` is false.
+    fn push_coded(buf: &mut EpisodicReplay, id: usize, len: usize, terminated: bool, close: bool) {
+        let ep = coded_episode(id, len, terminated, false);
+        for k in 0..len {
+            let last = close && k + 1 == len;
+            buf.push(
+                &ep.obs[k * OD..(k + 1) * OD],
+                &ep.actions[k * AD..(k + 1) * AD],
+                ep.rewards[k],
+                &ep.obs[(k + 1) * OD..(k + 2) * OD],
+                last && terminated,
+                last && !terminated,
+                Some(&ep.states[k * SD..(k + 1) * SD]),
+            )
+            .unwrap();
+        }
+    }
+
+    fn config(capacity: usize) -> ReplayConfig {
+        ReplayConfig::new(capacity, OD, AD).with_state_dim(SD)
+    }
+
+    /// What the buffer should hold: (id, len, terminated, injected) of the closed episodes.
+    type Meta = (usize, usize, bool, bool);
+
+    /// Checks every window of `b` against the episodes in `eps` (by id). Returns the
+    /// (id, t) of each window.
+    fn check_batch(b: &SequenceBatch, eps: &[Meta]) -> Vec<(usize, usize)> {
+        let (s, l) = (b.scan, b.opt);
+        let steps = s + l;
+        assert_eq!(b.obs.len(), b.n * (steps + 1) * OD);
+        assert_eq!(b.actions.len(), b.n * steps * AD);
+        assert_eq!(b.rewards.len(), b.n * steps);
+        assert_eq!(b.mask.len(), b.n * steps);
+        assert_eq!(b.state_dim, SD);
+        let states = b.stored_state.as_ref().expect("states stored");
+        let mut out = Vec::new();
+        for w in 0..b.n {
+            let (sl, ol) = (b.scan_len[w], b.opt_len[w]);
+            assert!(sl <= s && (1..=l).contains(&ol), "lengths {sl} {ol}");
+            let first_slot = s - sl;
+            let obs0 = b.obs[(w * (steps + 1) + first_slot) * OD];
+            let (id, first_step) = decode(obs0);
+            let &(_, len, terminated, injected) = eps
+                .iter()
+                .find(|m| m.0 == id)
+                .unwrap_or_else(|| panic!("window from episode {id} not in the buffer"));
+            let t = first_step + sl;
+            // Scan clipped at the episode start, opt clipped at the episode end.
+            assert_eq!(sl, s.min(t));
+            if len >= l {
+                assert!(t + l <= len);
+                assert_eq!(ol, l);
+            } else {
+                assert_eq!((t, ol), (0, len));
+            }
+            for j in 0..=steps {
+                let real_obs = j >= first_slot && j <= s + ol;
+                for c in 0..OD {
+                    let v = b.obs[(w * (steps + 1) + j) * OD + c];
+                    if real_obs {
+                        let k = t + j - s;
+                        assert_eq!(v, code(id, k) + 0.25 * c as f32, "obs slot {j}");
+                    } else {
+                        assert_eq!(v, 0.0, "obs padding slot {j}");
+                    }
+                }
+                if j == steps {
+                    break;
+                }
+                let real = j >= first_slot && j < s + ol;
+                let m = b.mask[w * steps + j];
+                let r = b.rewards[w * steps + j];
+                let a = b.actions[(w * steps + j) * AD];
+                if real {
+                    let k = t + j - s;
+                    assert_eq!((m, r, a), (1.0, code(id, k), -code(id, k)), "slot {j}");
+                } else {
+                    assert_eq!((m, r, a), (0.0, 0.0, 0.0), "padding slot {j}");
+                }
+            }
+            let tail_term = terminated && t + ol == len;
+            assert_eq!(b.tail_terminated[w], if tail_term { 1.0 } else { 0.0 });
+            assert_eq!(b.injected[w], if injected { 1.0 } else { 0.0 });
+            for c in 0..SD {
+                let expected = if injected {
+                    0.0 // injected test episodes carry no states
+                } else {
+                    code(id, t - sl) + 0.5 * c as f32
+                };
+                assert_eq!(states[w * SD + c], expected);
+            }
+            out.push((id, t));
+        }
+        out
+    }
+
+    /// A naive model of the eviction rules, on a plain Vec.
+    #[derive(Default)]
+    struct Model {
+        closed: Vec<Meta>,
+        open: usize,
+    }
+
+    impl Model {
+        fn total(&self) -> usize {
+            self.closed.iter().map(|m| m.1).sum::<usize>() + self.open
+        }
+        fn evict(&mut self, cap: usize) {
+            while self.total() > cap && !(self.closed.len() <= 1 && self.open == 0) {
+                if self.closed.is_empty() {
+                    break;
+                }
+                self.closed.remove(0);
+            }
+        }
+    }
+
+    #[derive(Debug, Clone)]
+    enum Op {
+        /// Agent episode pushed step by step: (len, terminated).
+        Agent(usize, bool),
+        /// Injected whole episode: (len, terminated).
+        Inject(usize, bool),
+    }
+
+    fn op() -> impl Strategy<Value = Op> {
+        prop_oneof![
+            3 => (1usize..15, any::<bool>()).prop_map(|(l, t)| Op::Agent(l, t)),
+            1 => (1usize..10, any::<bool>()).prop_map(|(l, t)| Op::Inject(l, t)),
+        ]
+    }
+
+    /// Builds a buffer and its model from ops; the last op, when `leave_open` > 0, pushes
+    /// that many steps of an episode that stays open.
+    fn build(cap: usize, ops: &[Op], leave_open: usize) -> (EpisodicReplay, Model) {
+        let mut buf = EpisodicReplay::new(config(cap)).unwrap();
+        let mut model = Model::default();
+        let inj_limit = config(cap).max_injected_transitions();
+        for (id, op) in ops.iter().enumerate() {
+            match *op {
+                Op::Agent(len, term) => {
+                    push_coded(&mut buf, id, len, term, true);
+                    model.closed.push((id, len, term, false));
+                    model.evict(cap);
+                }
+                Op::Inject(len, term) => {
+                    let mut ep = coded_episode(id, len, term, true);
+                    ep.states.clear();
+                    let res = buf.add_episode(ep);
+                    if len > inj_limit {
+                        assert!(matches!(res, Err(ReplayError::InjectedTooLong { .. })));
+                        continue;
+                    }
+                    res.unwrap();
+                    loop {
+                        let inj: usize = model.closed.iter().filter(|m| m.3).map(|m| m.1).sum();
+                        if inj + len <= inj_limit {
+                            break;
+                        }
+                        let pos = model.closed.iter().position(|m| m.3).unwrap();
+                        model.closed.remove(pos);
+                    }
+                    model.closed.push((id, len, term, true));
+                    model.evict(cap);
+                }
+            }
+        }
+        if leave_open > 0 {
+            let id = ops.len();
+            let ep = coded_episode(id, leave_open, false, false);
+            for k in 0..leave_open {
+                buf.push(
+                    &ep.obs[k * OD..(k + 1) * OD],
+                    &ep.actions[k..k + 1],
+                    ep.rewards[k],
+                    &ep.obs[(k + 1) * OD..(k + 2) * OD],
+                    false,
+                    false,
+                    Some(&ep.states[k * SD..(k + 1) * SD]),
+                )
+                .unwrap();
+                model.open += 1;
+                model.evict(cap);
+            }
+        }
+        (buf, model)
+    }
+
+    fn ids(buf: &EpisodicReplay) -> Vec<usize> {
+        buf.episodes().iter().map(|e| decode(e.obs[0]).0).collect()
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn prop_windows_and_eviction(
+            cap in 5usize..80,
+            ops in prop::collection::vec(op(), 0..25),
+            leave_open in 0usize..6,
+            n in 1usize..40,
+            scan in 0usize..7,
+            opt in 1usize..7,
+            seed in any::<u64>(),
+            share in 0.0f64..=1.0,
+        ) {
+            let (buf, model) = build(cap, &ops, leave_open);
+            // Eviction: exactly the model's episodes, oldest first, same counts.
+            prop_assert_eq!(ids(&buf), model.closed.iter().map(|m| m.0).collect::<Vec<_>>());
+            prop_assert_eq!(buf.len_transitions(), model.total());
+            prop_assert_eq!(buf.open_len(), leave_open);
+            let inj: usize = model.closed.iter().filter(|m| m.3).map(|m| m.1).sum();
+            prop_assert_eq!(buf.injected_transitions(), inj);
+            prop_assert!(inj <= config(cap).max_injected_transitions());
+            // Capacity respected unless one single episode is longer than it.
+            let single = buf.num_episodes() + usize::from(buf.open_len() > 0) <= 1;
+            prop_assert!(buf.len_transitions() <= cap || single);
+
+            let mut rng = NpRng::from_seed(seed);
+            match buf.sample(&mut rng, n, scan, opt) {
+                None => prop_assert_eq!(buf.num_episodes(), 0),
+                Some(b) => {
+                    prop_assert_eq!(b.n, n);
+                    // The open episode (id = ops.len()) is never found by check_batch.
+                    check_batch(&b, &model.closed);
+                }
+            }
+            match buf.sample_mixed(&mut rng, n, scan, opt, share) {
+                None => prop_assert_eq!(buf.num_episodes(), 0),
+                Some(b) => {
+                    check_batch(&b, &model.closed);
+                    let n_inj = b.injected.iter().filter(|&&x| x == 1.0).count();
+                    let has_inj = buf.num_injected_episodes() > 0;
+                    let has_agent = buf.num_episodes() > buf.num_injected_episodes();
+                    let expected = match (has_agent, has_inj) {
+                        (true, true) => (n as f64 * share).round() as usize,
+                        (false, true) => n,
+                        _ => 0,
+                    };
+                    prop_assert_eq!(n_inj, expected);
+                    // Injected windows come first.
+                    prop_assert!(b.injected[..n_inj].iter().all(|&x| x == 1.0));
+                }
+            }
+        }
+
+        #[test]
+        fn prop_serde_round_trip_same_samples(
+            cap in 5usize..60,
+            ops in prop::collection::vec(op(), 1..12),
+            leave_open in 0usize..4,
+            seed in any::<u64>(),
+        ) {
+            let (buf, _) = build(cap, &ops, leave_open);
+            let mut rng = NpRng::from_seed(seed);
+            // Warm the original's cache with another opt first: it must not matter.
+            let _ = buf.sample(&mut rng.clone(), 3, 1, 2);
+            let json = serde_json::to_string(&buf).unwrap();
+            let back: EpisodicReplay = serde_json::from_str(&json).unwrap();
+            prop_assert!(back == buf);
+            prop_assert_eq!(back.len_transitions(), buf.len_transitions());
+            prop_assert_eq!(back.injected_transitions(), buf.injected_transitions());
+            let mut rng2 = rng.clone();
+            prop_assert_eq!(buf.sample(&mut rng, 16, 3, 4), back.sample(&mut rng2, 16, 3, 4));
+            prop_assert_eq!(
+                buf.sample_mixed(&mut rng, 16, 2, 3, 0.3),
+                back.sample_mixed(&mut rng2, 16, 2, 3, 0.3)
+            );
+            prop_assert_eq!(rng, rng2);
+        }
+    }
+
+    #[test]
+    fn uniform_over_positions() {
+        // Lengths 3, 5, 1, 8, 2 with opt = 2: starts 2, 4, 1, 7, 1 = 15 positions.
+        let lens = [3usize, 5, 1, 8, 2];
+        let mut buf = EpisodicReplay::new(config(100)).unwrap();
+        for (id, &len) in lens.iter().enumerate() {
+            push_coded(&mut buf, id, len, id % 2 == 0, true);
+        }
+        // A partial episode that must never appear.
+        push_coded(&mut buf, 99, 4, false, false);
+        let metas: Vec<Meta> = lens
+            .iter()
+            .enumerate()
+            .map(|(id, &len)| (id, len, id % 2 == 0, false))
+            .collect();
+        assert_eq!(buf.num_positions(2), 15);
+        let mut counts = std::collections::HashMap::new();
+        let mut rng = NpRng::from_seed(123);
+        let draws = 150_000;
+        for _ in 0..(draws / 500) {
+            let b = buf.sample(&mut rng, 500, 2, 2).unwrap();
+            for key in check_batch(&b, &metas) {
+                *counts.entry(key).or_insert(0usize) += 1;
+            }
+        }
+        assert_eq!(counts.len(), 15, "{counts:?}");
+        let expected = draws as f64 / 15.0;
+        let chi2: f64 = counts
+            .values()
+            .map(|&c| (c as f64 - expected).powi(2) / expected)
+            .sum();
+        // 14 degrees of freedom: P(chi2 > 36.1) = 0.001.
+        assert!(chi2 < 36.1, "chi2 = {chi2}, counts {counts:?}");
+    }
+
+    #[test]
+    fn uniform_across_pools() {
+        // Agent: one episode with 4 starts (len 5, opt 2); injected: one with 2 (len 3).
+        let mut buf = EpisodicReplay::new(config(100)).unwrap();
+        push_coded(&mut buf, 0, 5, true, true);
+        let mut ep = coded_episode(1, 3, true, true);
+        ep.states.clear();
+        buf.add_episode(ep).unwrap();
+        let mut rng = NpRng::from_seed(5);
+        let b = buf.sample(&mut rng, 60_000, 0, 2).unwrap();
+        let inj = b.injected.iter().sum::<f32>() as f64 / 60_000.0;
+        assert!((inj - 2.0 / 6.0).abs() < 0.01, "{inj}");
+    }
+
+    #[test]
+    fn hand_checked_window() {
+        // One terminated episode of 4 steps, scan 2, opt 3, start forced by sampling enough.
+        let mut buf = EpisodicReplay::new(config(100)).unwrap();
+        push_coded(&mut buf, 7, 4, true, true);
+        let mut rng = NpRng::from_seed(0);
+        let b = buf.sample(&mut rng, 200, 2, 3).unwrap();
+        let metas = [(7, 4, true, false)];
+        let keys = check_batch(&b, &metas);
+        // Starts 0 and 1 both occur.
+        assert!(keys.contains(&(7, 0)) && keys.contains(&(7, 1)));
+        let w = keys.iter().position(|k| *k == (7, 1)).unwrap();
+        // Start 1: scan_len 1 (slot 0 padding), opt steps 1, 2, 3, bootstrap obs 4, which
+        // ends the episode by termination.
+        assert_eq!((b.scan_len[w], b.opt_len[w]), (1, 3));
+        assert_eq!(&b.mask[w * 5..w * 5 + 5], &[0.0, 1.0, 1.0, 1.0, 1.0]);
+        assert_eq!(
+            &b.rewards[w * 5..w * 5 + 5],
+            &[0.0, code(7, 0), code(7, 1), code(7, 2), code(7, 3)]
+        );
+        assert_eq!(b.obs[(w * 6 + 5) * OD], code(7, 4));
+        assert_eq!(b.tail_terminated[w], 1.0);
+        assert_eq!(
+            &b.stored_state.as_ref().unwrap()[w * SD..w * SD + 1],
+            &[code(7, 0)]
+        );
+        let w0 = keys.iter().position(|k| *k == (7, 0)).unwrap();
+        assert_eq!(b.tail_terminated[w0], 0.0);
+        assert_eq!(b.obs[(w0 * 6 + 5) * OD], code(7, 3));
+    }
+
+    #[test]
+    fn short_episode_right_padded() {
+        // Truncated episode of 2 steps with opt 4: one window, opt_len 2, bootstrap at
+        // slot scan + 2, not terminated.
+        let mut buf = EpisodicReplay::new(config(100)).unwrap();
+        push_coded(&mut buf, 3, 2, false, true);
+        let mut rng = NpRng::from_seed(1);
+        let b = buf.sample(&mut rng, 1, 1, 4).unwrap();
+        check_batch(&b, &[(3, 2, false, false)]);
+        assert_eq!((b.scan_len[0], b.opt_len[0]), (0, 2));
+        assert_eq!(b.mask, vec![0.0, 1.0, 1.0, 0.0, 0.0]);
+        assert_eq!(b.obs[3 * OD], code(3, 2));
+        assert_eq!(b.tail_terminated[0], 0.0);
+    }
+
+    #[test]
+    fn open_episode_is_never_sampled() {
+        let mut buf = EpisodicReplay::new(config(100)).unwrap();
+        push_coded(&mut buf, 0, 6, false, false);
+        let mut rng = NpRng::from_seed(0);
+        assert!(buf.sample(&mut rng, 4, 0, 1).is_none());
+        assert!(buf.sample_mixed(&mut rng, 4, 0, 1, 0.5).is_none());
+        assert_eq!((buf.len_transitions(), buf.num_episodes()), (6, 0));
+        assert_eq!(buf.open_episode().unwrap().len(), 6);
+    }
+
+    #[test]
+    fn eviction_oldest_first_and_open_kept() {
+        let mut buf = EpisodicReplay::new(config(10)).unwrap();
+        push_coded(&mut buf, 0, 4, true, true);
+        push_coded(&mut buf, 1, 4, true, true);
+        assert_eq!(ids(&buf), vec![0, 1]);
+        push_coded(&mut buf, 2, 3, true, true); // 11 > 10: evict episode 0
+        assert_eq!(ids(&buf), vec![1, 2]);
+        assert_eq!(buf.len_transitions(), 7);
+        // An open episode growing past the capacity evicts closed ones, never itself.
+        push_coded(&mut buf, 3, 12, false, false);
+        assert_eq!(buf.num_episodes(), 0);
+        assert_eq!(buf.len_transitions(), 12);
+        // When it closes it stays alone (the only episode exceeds the capacity).
+        buf.push(&[0.0; OD], &[0.0], 0.0, &[0.0; OD], true, false, None)
+            .unwrap();
+        assert_eq!((buf.num_episodes(), buf.len_transitions()), (1, 13));
+        push_coded(&mut buf, 4, 1, true, true);
+        assert_eq!(ids(&buf), vec![4]);
+    }
+
+    #[test]
+    fn injected_quota_evicts_injected_first() {
+        // Capacity 20, quota 10 injected transitions.
+        let mut buf = EpisodicReplay::new(config(20)).unwrap();
+        let inject =
+            |buf: &mut EpisodicReplay, id, len| buf.add_episode(coded_episode(id, len, true, true));
+        inject(&mut buf, 0, 4).unwrap();
+        push_coded(&mut buf, 1, 3, true, true);
+        inject(&mut buf, 2, 4).unwrap();
+        assert_eq!(ids(&buf), vec![0, 1, 2]);
+        inject(&mut buf, 3, 4).unwrap(); // 12 > 10 injected: drop injected 0, not agent 1
+        assert_eq!(ids(&buf), vec![1, 2, 3]);
+        assert_eq!(buf.injected_transitions(), 8);
+        assert_eq!(
+            inject(&mut buf, 4, 11),
+            Err(ReplayError::InjectedTooLong { len: 11, limit: 10 })
+        );
+        assert_eq!(ids(&buf), vec![1, 2, 3]);
+        let none = EpisodicReplay::new(config(20).with_max_injected_fraction(0.0));
+        assert!(none
+            .unwrap()
+            .add_episode(coded_episode(0, 1, true, true))
+            .is_err());
+    }
+
+    #[test]
+    fn rejects_bad_input() {
+        assert!(EpisodicReplay::new(ReplayConfig::new(0, 1, 1)).is_err());
+        assert!(EpisodicReplay::new(config(10).with_max_injected_fraction(1.5)).is_err());
+        let mut buf = EpisodicReplay::new(config(10)).unwrap();
+        let err = buf.push(&[0.0; 3], &[0.0], 0.0, &[0.0; OD], false, false, None);
+        assert!(matches!(
+            err,
+            Err(ReplayError::Dimension { what: "obs", .. })
+        ));
+        let err = buf.push(
+            &[0.0; OD],
+            &[0.0],
+            0.0,
+            &[0.0; OD],
+            false,
+            false,
+            Some(&[1.0]),
+        );
+        assert!(matches!(
+            err,
+            Err(ReplayError::Dimension { what: "state", .. })
+        ));
+        assert!(buf.is_empty(), "a rejected push stores nothing");
+        assert_eq!(
+            buf.add_episode(Episode::default()),
+            Err(ReplayError::EmptyEpisode)
+        );
+        let mut ep = coded_episode(0, 3, true, false);
+        ep.obs.pop();
+        assert!(buf.add_episode(ep).is_err());
+        // A corrupt checkpoint is refused.
+        push_coded(&mut buf, 0, 3, true, true);
+        let mut json: serde_json::Value = serde_json::to_value(&buf).unwrap();
+        json["agent"][0]["episode"]["rewards"] = serde_json::json!([1.0]);
+        assert!(serde_json::from_value::<EpisodicReplay>(json).is_err());
+    }
+
+    #[test]
+    fn states_optional() {
+        // state_dim = 0: no stored_state, states dropped.
+        let mut buf = EpisodicReplay::new(ReplayConfig::new(10, OD, AD)).unwrap();
+        buf.add_episode(coded_episode(0, 3, true, false)).unwrap();
+        assert!(buf.episodes()[0].states.is_empty());
+        let b = buf.sample(&mut NpRng::from_seed(0), 2, 1, 1).unwrap();
+        assert_eq!((b.stored_state, b.state_dim), (None, 0));
+        // state_dim > 0 and push without a state: zeros.
+        let mut buf = EpisodicReplay::new(config(10)).unwrap();
+        buf.push(&[1.0; OD], &[0.0], 0.0, &[2.0; OD], true, false, None)
+            .unwrap();
+        assert_eq!(buf.episodes()[0].states, vec![0.0; SD]);
+    }
+
+    #[test]
+    fn clear_and_reuse() {
+        let mut buf = EpisodicReplay::new(config(50)).unwrap();
+        push_coded(&mut buf, 0, 5, true, true);
+        let mut rng = NpRng::from_seed(0);
+        assert!(buf.sample(&mut rng, 2, 0, 2).is_some());
+        push_coded(&mut buf, 1, 2, true, false);
+        buf.clear();
+        assert_eq!((buf.len_transitions(), buf.num_episodes()), (0, 0));
+        assert!(buf.sample(&mut rng, 2, 0, 2).is_none());
+        push_coded(&mut buf, 2, 4, true, true);
+        let b = buf.sample(&mut rng, 8, 0, 2).unwrap();
+        check_batch(&b, &[(2, 4, true, false)]);
+        assert_eq!(buf.num_positions(2), 3);
+    }
+
+    #[test]
+    fn index_follows_evictions_incrementally() {
+        // Interleave pushes, evictions and samples with a changing opt; every batch must be
+        // consistent with the episodes present.
+        let mut buf = EpisodicReplay::new(config(40)).unwrap();
+        let mut rng = NpRng::from_seed(77);
+        let mut present: Vec<Meta> = Vec::new();
+        for id in 0..200 {
+            let len = 1 + (id * 7) % 11;
+            push_coded(&mut buf, id, len, id % 3 == 0, true);
+            present.push((id, len, id % 3 == 0, false));
+            let live = ids(&buf);
+            present.retain(|m| live.contains(&m.0));
+            let opt = 1 + id % 4;
+            let b = buf.sample(&mut rng, 10, id % 3, opt).unwrap();
+            check_batch(&b, &present);
+            let expected: u64 = present.iter().map(|m| starts(m.1, opt)).sum();
+            assert_eq!(buf.num_positions(opt), expected);
+        }
+    }
+
+    #[test]
+    fn sampling_is_fast_enough() {
+        // 1e5 transitions in 100 episodes; 64 windows of 120 + 8 steps. Not a timing
+        // assertion, only a smoke test that a large buffer samples.
+        let cfg = ReplayConfig::new(100_000, 24, 4).with_state_dim(16);
+        let mut buf = EpisodicReplay::new(cfg).unwrap();
+        for e in 0..100 {
+            let len = 1000;
+            let ep = Episode {
+                obs: vec![e as f32; (len + 1) * 24],
+                actions: vec![0.0; len * 4],
+                rewards: vec![1.0; len],
+                states: vec![0.5; len * 16],
+                terminated: e % 2 == 0,
+                truncated: e % 2 == 1,
+                injected: false,
+            };
+            buf.add_episode(ep).unwrap();
+        }
+        assert_eq!(buf.len_transitions(), 100_000);
+        let mut rng = NpRng::from_seed(0);
+        for _ in 0..20 {
+            let b = buf.sample(&mut rng, 64, 120, 8).unwrap();
+            assert!(b.opt_len.iter().all(|&l| l == 8));
+            let real: usize = b.scan_len.iter().map(|s| s + 8).sum();
+            assert_eq!(b.mask.iter().filter(|&&m| m == 1.0).count(), real);
+        }
+    }
+}
