@@ -5,11 +5,7 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
-scripts/fetch-box2d.sh
-if [ -x scripts/setup-torch.sh ]; then
-  scripts/setup-torch.sh
-fi
-# shellcheck source=scripts/env.sh
-source scripts/env.sh
+# shellcheck source=scripts/deps.sh
+source scripts/deps.sh
 cargo build --release -p rdpg-cli
 echo "setup done: $(ls -1 target/release/rdpg)"

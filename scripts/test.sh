@@ -5,12 +5,8 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
-scripts/fetch-box2d.sh
-if [ -x scripts/setup-torch.sh ]; then
-  scripts/setup-torch.sh
-fi
-# shellcheck source=scripts/env.sh
-source scripts/env.sh
+# shellcheck source=scripts/deps.sh
+source scripts/deps.sh
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace

@@ -6,7 +6,7 @@
 //! it is detected by its `b2Sweep::Advance` and reported through `rdpg_box2d::FLAVOR` so that
 //! the parity tests can say so and fall back to a tolerance.
 //!
-//! Compiler flags are fixed (-O2, no fast-math, no FMA contraction, baseline x86-64) whatever
+//! Compiler flags are fixed (-O3, no fast-math, no FMA contraction, baseline x86-64) whatever
 //! the cargo profile, because bit-for-bit parity with Gymnasium depends on them.
 
 use std::env;
@@ -61,11 +61,12 @@ fn main() {
     build
         .cpp(true)
         .include(&tree)
-        .opt_level(2)
+        .opt_level(3)
         .debug(false)
         .flag_if_supported("-std=c++11")
         .flag_if_supported("-ffp-contract=off")
         .flag_if_supported("-fno-fast-math")
+        .flag_if_supported("-fno-math-errno")
         .warnings(false)
         .define("NDEBUG", None)
         .files(&sources)

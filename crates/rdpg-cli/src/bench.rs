@@ -13,6 +13,96 @@ use serde::Serialize;
 pub enum BenchCommand {
     /// Step environments with uniform random actions, resetting on episode end.
     Env(EnvBenchArgs),
+    /// Time RDPG updates on synthetic BipedalWalker-shaped batches (the paper's networks).
+    Update(UpdateBenchArgs),
+}
+
+/// Arguments of `rdpg bench update`.
+#[derive(Debug, Args)]
+pub struct UpdateBenchArgs {
+    /// Scan length s (steps before the optimisation part, no gradient).
+    #[arg(long, default_value_t = 24)]
+    scan: usize,
+    /// Windows per batch.
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    /// Optimisation length l (= update length u).
+    #[arg(long, default_value_t = 8)]
+    opt: usize,
+    /// Timed updates (after 3 warm-up updates).
+    #[arg(long, default_value_t = 30)]
+    iters: usize,
+    /// CPU threads for libtorch.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Device: cpu, cuda or auto.
+    #[arg(long, default_value = "cpu")]
+    device: String,
+}
+
+#[derive(Serialize)]
+struct UpdateBenchLine {
+    bench: &'static str,
+    device: String,
+    batch: usize,
+    scan: usize,
+    opt: usize,
+    iters: usize,
+    threads: usize,
+    ms_scan: f64,
+    ms_window_nograd: f64,
+    ms_critic_step: f64,
+    ms_critic_rescan: f64,
+    ms_actor_step: f64,
+    ms_other: f64,
+    updates_per_sec: f64,
+}
+
+fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
+    use rdpg_agents::{bench::bench_update_with, DeviceSpec, RdpgConfig};
+    if a.iters == 0 || a.batch == 0 || a.opt == 0 {
+        bail!("--iters, --batch and --opt must be positive");
+    }
+    let device = match a.device.as_str() {
+        "cpu" => DeviceSpec::Cpu,
+        "cuda" => DeviceSpec::Cuda,
+        "auto" => DeviceSpec::Auto,
+        other => bail!("--device {other:?}: expected cpu, cuda or auto"),
+    };
+    let cfg = RdpgConfig {
+        scan_len: a.scan,
+        batch_size: a.batch,
+        opt_len: a.opt,
+        update_len: a.opt,
+        device,
+        num_threads: Some(a.threads),
+        ..RdpgConfig::default()
+    };
+    let r = bench_update_with(&cfg, 24, 4, 0.0, a.iters)?;
+    let p = r.per_update;
+    let dev = if device == DeviceSpec::Cpu || !rdpg_agents::cuda_available() {
+        "cpu"
+    } else {
+        "cuda"
+    };
+    let line = UpdateBenchLine {
+        bench: "update",
+        device: dev.into(),
+        batch: a.batch,
+        scan: a.scan,
+        opt: a.opt,
+        iters: a.iters,
+        threads: a.threads,
+        ms_scan: p.scan * 1e3,
+        ms_window_nograd: p.window_nograd * 1e3,
+        ms_critic_step: p.critic_step * 1e3,
+        ms_critic_rescan: p.critic_rescan * 1e3,
+        ms_actor_step: p.actor_step * 1e3,
+        ms_other: (p.prepare + p.other) * 1e3,
+        updates_per_sec: r.updates_per_sec,
+    };
+    println!("{}", serde_json::to_string(&line)?);
+    Ok(())
 }
 
 /// Arguments of `rdpg bench env`.
@@ -51,6 +141,7 @@ struct EnvBenchLine<'a> {
 pub fn run(cmd: &BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Env(a) => bench_env(a),
+        BenchCommand::Update(a) => bench_update(a),
     }
 }
 

@@ -133,6 +133,10 @@ where
     if let Some(dir) = &target.png_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
+    if let Some(parent) = target.gif.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("cannot create {}", parent.display()))?;
+    }
     let mut gif = GifWriter::create(&target.gif, w, h, fps)?;
     let mut write = |scene: &rdpg_render::Scene, k: usize| -> Result<()> {
         let mut frame = rasterize(scene);

@@ -179,3 +179,41 @@ fn bench_env_prints_one_json_line_ending_in_steps_per_sec() {
         assert!(tail.ends_with('}') && !tail.contains(','), "{line}");
     }
 }
+
+#[test]
+fn bench_update_prints_one_json_line_ending_in_updates_per_sec() {
+    let out = rdpg()
+        .args([
+            "bench",
+            "update",
+            "--iters",
+            "2",
+            "--batch",
+            "4",
+            "--scan",
+            "3",
+            "--opt",
+            "2",
+            "--threads",
+            "1",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let v: Value = serde_json::from_str(text.trim()).unwrap();
+    assert!(v["updates_per_sec"].as_f64().unwrap() > 0.0);
+    assert!(
+        text.trim().ends_with('}') && text.trim().rsplit_once(",\"updates_per_sec\":").is_some()
+    );
+    let bad = rdpg()
+        .args(["bench", "update", "--device", "tpu"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--device"));
+}

@@ -6,6 +6,11 @@
 //! episode and the last observation of the finished one is in [`VecStep::final_obs`]. Each
 //! environment lives on one worker for its whole life, so results do not depend on the number
 //! of workers and equal those of N sequential environments with the same seeds.
+//!
+//! With a *seed schedule* ([`VecEnv::reset_scheduled`]) every episode instead gets its own seed,
+//! [`episode_seed`]`(base, i, k)` for the `k`-th episode of env `i`, so that any episode can be
+//! rebuilt from `(base, i, k)` and its actions alone ([`VecEnv::restore`]): this is how training
+//! checkpoints resume mid-episode with bit-identical environments.
 
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::thread::JoinHandle;
@@ -33,21 +38,48 @@ pub struct VecStep {
 
 enum Cmd {
     Reset(Option<u64>),
+    ResetScheduled(u64, Vec<u64>),
     Step(Vec<Vec<f32>>),
+    Restore(usize, u64, Vec<Vec<f32>>),
+}
+
+/// Seed of episode `k` of env `i` under the seed schedule `base` (a SplitMix64 mix, masked to
+/// 63 bits so that it is also a valid seed for Python tools).
+pub fn episode_seed(base: u64, env: usize, k: u64) -> u64 {
+    let mut z = base
+        ^ (env as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ k.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    (z ^ (z >> 31)) >> 1
 }
 
 type Reply = Result<Vec<VecStep>, EnvError>;
 
+enum Link {
+    /// A shard on its own thread.
+    Remote {
+        tx: Option<Sender<Cmd>>,
+        rx: Receiver<Reply>,
+        handle: Option<JoinHandle<()>>,
+    },
+    /// The last shard, run on the calling thread after the remote ones were sent their work.
+    Local {
+        shard: Shard,
+        pending: Option<Reply>,
+    },
+}
+
 struct Worker {
-    tx: Option<Sender<Cmd>>,
-    rx: Receiver<Reply>,
-    handle: Option<JoinHandle<()>>,
+    link: Link,
     count: usize,
 }
 
-/// N environments on W worker threads.
+/// N environments on W threads (W - 1 workers plus the calling thread).
 pub struct VecEnv {
     workers: Vec<Worker>,
+    schedule: Option<u64>,
+    episode_index: Vec<u64>,
     num_envs: usize,
     obs_dim: usize,
     act_dim: usize,
@@ -78,28 +110,47 @@ impl VecEnv {
             chunks[i * w / num_envs].push(env);
         }
         let mut offset = 0u64;
+        let last = chunks.len() - 1;
         let workers = chunks
             .into_iter()
-            .map(|chunk| {
+            .enumerate()
+            .map(|(k, envs)| {
+                let count = envs.len();
+                let shard = Shard {
+                    envs,
+                    first: offset,
+                    schedule: None,
+                };
+                offset += count as u64;
+                if k == last {
+                    return Ok(Worker {
+                        link: Link::Local {
+                            shard,
+                            pending: None,
+                        },
+                        count,
+                    });
+                }
                 let (tx, crx) = channel::<Cmd>();
                 let (ctx, rx) = channel::<Reply>();
-                let count = chunk.len();
-                let first = offset;
-                offset += count as u64;
                 let handle = std::thread::Builder::new()
                     .name("rdpg-vecenv".into())
-                    .spawn(move || worker_loop(chunk, first, crx, ctx))
+                    .spawn(move || worker_loop(shard, crx, ctx))
                     .map_err(|e| EnvError::Config(format!("cannot spawn worker thread: {e}")))?;
                 Ok(Worker {
-                    tx: Some(tx),
-                    rx,
-                    handle: Some(handle),
+                    link: Link::Remote {
+                        tx: Some(tx),
+                        rx,
+                        handle: Some(handle),
+                    },
                     count,
                 })
             })
             .collect::<Result<Vec<_>, EnvError>>()?;
         Ok(Self {
             workers,
+            schedule: None,
+            episode_index: vec![0; num_envs],
             num_envs,
             obs_dim,
             act_dim,
@@ -137,10 +188,63 @@ impl VecEnv {
     /// Resets every environment, env `i` with seed `seed + i` (or unseeded); returns the
     /// observations.
     pub fn reset(&mut self, seed: Option<u64>) -> Result<Vec<Vec<f32>>, EnvError> {
-        for w in &self.workers {
+        self.schedule = None;
+        for w in &mut self.workers {
             send(w, Cmd::Reset(seed))?;
         }
         Ok(self.collect()?.into_iter().map(|s| s.obs).collect())
+    }
+
+    /// Resets every environment under the seed schedule `base`, env `i` starting at its episode
+    /// `episodes[i]` (all zeros for a fresh start); later auto-resets continue the schedule.
+    pub fn reset_scheduled(
+        &mut self,
+        base: u64,
+        episodes: &[u64],
+    ) -> Result<Vec<Vec<f32>>, EnvError> {
+        if episodes.len() != self.num_envs {
+            return Err(EnvError::Config(format!(
+                "{} episode indices for {} envs",
+                episodes.len(),
+                self.num_envs
+            )));
+        }
+        let mut start = 0;
+        for w in &mut self.workers {
+            send(
+                w,
+                Cmd::ResetScheduled(base, episodes[start..start + w.count].to_vec()),
+            )?;
+            start += w.count;
+        }
+        self.schedule = Some(base);
+        self.episode_index = episodes.to_vec();
+        Ok(self.collect()?.into_iter().map(|s| s.obs).collect())
+    }
+
+    /// Episode index of every env under the seed schedule (0 before any scheduled reset).
+    pub fn episode_indices(&mut self) -> Vec<u64> {
+        self.episode_index.clone()
+    }
+
+    /// Rebuilds env `env`'s current episode: resets it with the schedule's seed for its current
+    /// episode index and replays `actions`; returns the observation after them.
+    pub fn restore(&mut self, env: usize, actions: Vec<Vec<f32>>) -> Result<Vec<f32>, EnvError> {
+        let base = self
+            .schedule
+            .ok_or_else(|| EnvError::Config("restore needs a seed schedule".into()))?;
+        let mut start = 0;
+        for w in &mut self.workers {
+            if env < start + w.count {
+                send(w, Cmd::Restore(env - start, base, actions))?;
+                return receive(w).map(|mut v| v.pop().expect("one step").obs);
+            }
+            start += w.count;
+        }
+        Err(EnvError::Config(format!(
+            "env {env} out of range ({} envs)",
+            self.num_envs
+        )))
     }
 
     /// Steps every environment with its action (`actions.len() == num_envs`).
@@ -153,24 +257,27 @@ impl VecEnv {
             )));
         }
         let mut start = 0;
-        for w in &self.workers {
+        for w in &mut self.workers {
             send(w, Cmd::Step(actions[start..start + w.count].to_vec()))?;
             start += w.count;
         }
-        self.collect()
+        let steps = self.collect()?;
+        if self.schedule.is_some() {
+            for (k, s) in self.episode_index.iter_mut().zip(&steps) {
+                *k += s.final_obs.is_some() as u64;
+            }
+        }
+        Ok(steps)
     }
 
-    fn collect(&self) -> Result<Vec<VecStep>, EnvError> {
+    fn collect(&mut self) -> Result<Vec<VecStep>, EnvError> {
         let mut out = Vec::with_capacity(self.num_envs);
         let mut first_err = None;
-        for w in &self.workers {
-            match w.rx.recv() {
-                Ok(Ok(steps)) => out.extend(steps),
-                Ok(Err(e)) => {
+        for w in &mut self.workers {
+            match receive(w) {
+                Ok(steps) => out.extend(steps),
+                Err(e) => {
                     first_err.get_or_insert(e);
-                }
-                Err(_) => {
-                    first_err.get_or_insert(EnvError::Physics("vector env worker died".into()));
                 }
             }
         }
@@ -181,35 +288,101 @@ impl VecEnv {
     }
 }
 
-fn send(w: &Worker, cmd: Cmd) -> Result<(), EnvError> {
-    w.tx.as_ref()
-        .expect("sender lives until drop")
-        .send(cmd)
-        .map_err(|_| EnvError::Physics("vector env worker died".into()))
+fn send(w: &mut Worker, cmd: Cmd) -> Result<(), EnvError> {
+    match &mut w.link {
+        Link::Remote { tx, .. } => tx
+            .as_ref()
+            .expect("sender lives until drop")
+            .send(cmd)
+            .map_err(|_| EnvError::Physics("vector env worker died".into())),
+        Link::Local { shard, pending } => {
+            *pending = Some(shard.handle(cmd));
+            Ok(())
+        }
+    }
 }
 
-fn worker_loop(mut envs: Vec<Box<dyn AnyEnv>>, first: u64, rx: Receiver<Cmd>, tx: Sender<Reply>) {
-    while let Ok(cmd) = rx.recv() {
-        let reply = match cmd {
-            Cmd::Reset(seed) => envs
-                .iter_mut()
-                .enumerate()
-                .map(|(i, env)| {
-                    let (obs, info) = env.reset(seed.map(|s| s.wrapping_add(first + i as u64)))?;
-                    Ok(VecStep {
-                        obs,
-                        reward: 0.0,
-                        terminated: false,
-                        truncated: false,
-                        final_obs: None,
-                        info,
+fn receive(w: &mut Worker) -> Reply {
+    match &mut w.link {
+        Link::Remote { rx, .. } => rx
+            .recv()
+            .unwrap_or_else(|_| Err(EnvError::Physics("vector env worker died".into()))),
+        Link::Local { pending, .. } => pending.take().expect("a command was sent"),
+    }
+}
+
+/// A slice of the environments with their seed-schedule state; lives on a worker thread, or on
+/// the calling thread for the last slice (one fewer thread hand-off per step).
+struct Shard {
+    envs: Vec<Box<dyn AnyEnv>>,
+    first: u64,
+    /// Seed schedule (base, episode index per env) when active.
+    schedule: Option<(u64, Vec<u64>)>,
+}
+
+fn fresh(obs: Vec<f32>, info: EnvInfo) -> VecStep {
+    VecStep {
+        obs,
+        reward: 0.0,
+        terminated: false,
+        truncated: false,
+        final_obs: None,
+        info,
+    }
+}
+
+impl Shard {
+    fn handle(&mut self, cmd: Cmd) -> Reply {
+        let first = self.first;
+        let envs = &mut self.envs;
+        let schedule = &mut self.schedule;
+        match cmd {
+            Cmd::ResetScheduled(base, episodes) => {
+                let r = envs
+                    .iter_mut()
+                    .zip(&episodes)
+                    .enumerate()
+                    .map(|(i, (env, &k))| {
+                        let (obs, info) =
+                            env.reset(Some(episode_seed(base, first as usize + i, k)))?;
+                        Ok(fresh(obs, info))
                     })
-                })
-                .collect(),
+                    .collect();
+                *schedule = Some((base, episodes));
+                r
+            }
+            Cmd::Restore(i, base, actions) => (|| {
+                let k = schedule.as_ref().map_or(0, |s| s.1[i]);
+                let env = &mut envs[i];
+                let (mut obs, mut info) =
+                    env.reset(Some(episode_seed(base, first as usize + i, k)))?;
+                for a in &actions {
+                    let s = env.step(a)?;
+                    if s.done() {
+                        return Err(EnvError::Config(
+                            "restored episode ended before its last action".into(),
+                        ));
+                    }
+                    (obs, info) = (s.obs, s.info);
+                }
+                Ok(vec![fresh(obs, info)])
+            })(),
+            Cmd::Reset(seed) => {
+                *schedule = None;
+                envs.iter_mut()
+                    .enumerate()
+                    .map(|(i, env)| {
+                        let (obs, info) =
+                            env.reset(seed.map(|s| s.wrapping_add(first + i as u64)))?;
+                        Ok(fresh(obs, info))
+                    })
+                    .collect()
+            }
             Cmd::Step(actions) => envs
                 .iter_mut()
                 .zip(actions)
-                .map(|(env, a)| {
+                .enumerate()
+                .map(|(i, (env, a))| {
                     let s = env.step(&a)?;
                     let done = s.done();
                     let mut out = VecStep {
@@ -221,14 +394,23 @@ fn worker_loop(mut envs: Vec<Box<dyn AnyEnv>>, first: u64, rx: Receiver<Cmd>, tx
                         info: s.info,
                     };
                     if done {
-                        let (obs, _) = env.reset(None)?;
+                        let seed = schedule.as_mut().map(|(base, ks)| {
+                            ks[i] += 1;
+                            episode_seed(*base, first as usize + i, ks[i])
+                        });
+                        let (obs, _) = env.reset(seed)?;
                         out.final_obs = Some(std::mem::replace(&mut out.obs, obs));
                     }
                     Ok(out)
                 })
                 .collect(),
-        };
-        if tx.send(reply).is_err() {
+        }
+    }
+}
+
+fn worker_loop(mut shard: Shard, rx: Receiver<Cmd>, tx: Sender<Reply>) {
+    while let Ok(cmd) = rx.recv() {
+        if tx.send(shard.handle(cmd)).is_err() {
             return;
         }
     }
@@ -237,9 +419,11 @@ fn worker_loop(mut envs: Vec<Box<dyn AnyEnv>>, first: u64, rx: Receiver<Cmd>, tx
 impl Drop for VecEnv {
     fn drop(&mut self) {
         for w in &mut self.workers {
-            drop(w.tx.take());
-            if let Some(h) = w.handle.take() {
-                let _ = h.join();
+            if let Link::Remote { tx, handle, .. } = &mut w.link {
+                drop(tx.take());
+                if let Some(h) = handle.take() {
+                    let _ = h.join();
+                }
             }
         }
     }
@@ -297,6 +481,42 @@ mod tests {
             }
         }
         assert!(ended >= n, "episodes should have ended and auto-reset");
+    }
+
+    #[test]
+    fn seed_schedule_restores_episodes_mid_way() {
+        let opts = EnvOptions {
+            max_episode_steps: Some(40),
+            ..Default::default()
+        };
+        let mut a = VecEnv::make("BipedalWalkerHardcore-v3", &opts, 2, 2).unwrap();
+        a.reset_scheduled(77, &[0, 0]).unwrap();
+        let mut taken: Vec<Vec<Vec<f32>>> = vec![Vec::new(); 2];
+        let mut last = Vec::new();
+        for t in 0..70 {
+            let acts = actions(t, 2);
+            let steps = a.step(&acts).unwrap();
+            for (i, s) in steps.iter().enumerate() {
+                if s.final_obs.is_some() {
+                    taken[i].clear();
+                } else {
+                    taken[i].push(acts[i].clone());
+                }
+            }
+            last = steps.into_iter().map(|s| s.obs).collect();
+        }
+        assert_eq!(a.episode_indices(), vec![1, 1], "one time-limit reset each");
+        // A second vector env rebuilt from (schedule, episode indices, actions) is identical.
+        let mut b = VecEnv::make("BipedalWalkerHardcore-v3", &opts, 2, 1).unwrap();
+        b.reset_scheduled(77, &a.episode_indices()).unwrap();
+        for (i, acts) in taken.iter().enumerate() {
+            assert_eq!(b.restore(i, acts.clone()).unwrap(), last[i]);
+        }
+        let acts = actions(99, 2);
+        let (sa, sb) = (a.step(&acts).unwrap(), b.step(&acts).unwrap());
+        assert_eq!(sa, sb);
+        assert_ne!(episode_seed(77, 0, 0), episode_seed(77, 1, 0));
+        assert_ne!(episode_seed(77, 0, 0), episode_seed(77, 0, 1));
     }
 
     #[test]

@@ -1,0 +1,388 @@
+//! Hyper-parameters of the RDPG (and feed-forward DDPG) learner.
+//!
+//! Defaults follow the paper's text (Song et al., ICARCV 2018, "Network structure" and Table I)
+//! and the authors' released code where the text is silent: actor LSTM 256, critic LSTM 320,
+//! critic action branch 64, body FC 192, 64 lidar convolution channels, Adam 1e-3 for both
+//! networks, critic L2 1e-5, gamma 0.99, batch 64, optimisation/update length 8/8, scan 24 (the
+//! paper's Table I run used 120), lambda 1 and no target networks (`tau = 0`).
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{AgentError, Result};
+
+/// How observations are embedded before the recurrent core (the "state embedding").
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Trunk {
+    /// BipedalWalker layout: the first `obs_dim - lidar_dim` values are body sensors (14 for
+    /// BipedalWalker), the last `lidar_dim` values are lidar ranges (10). Lidar: 1-D
+    /// convolution + ReLU + max-pool + FC(`lidar_fc`) + ReLU; body: FC(`body_fc`) + ReLU;
+    /// the two are concatenated.
+    Lidar,
+    /// A plain multi-layer perceptron (ReLU after every layer), for tasks without lidar such as
+    /// Pendulum with hidden velocity (`obs_dim = 2`).
+    Mlp {
+        /// Width of each hidden layer; the last one is the embedding size. Must be non-empty.
+        hidden: Vec<usize>,
+    },
+}
+
+/// Where the tensors live.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceSpec {
+    /// Always the CPU.
+    Cpu,
+    /// The first CUDA device; an error if libtorch sees none.
+    Cuda,
+    /// CUDA when available, else the CPU.
+    Auto,
+}
+
+/// How the no-gradient scan (burn-in) handles windows whose scan is shorter than `s`
+/// (left-padded windows near an episode start). Both give the state after exactly
+/// `scan_len` real steps from the initial state; padding never touches it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScanMethod {
+    /// Windows with a full scan run the fused LSTM kernel in one call (the only call when every
+    /// window has a full scan, the common case); the few shorter ones (near an episode start)
+    /// run the masked cell loop of `MaskedLoop` as a sub-batch. The default.
+    Grouped,
+    /// One LSTM cell step per scan step over the whole batch; the state of windows still in
+    /// their padding is kept with a mask (`where`). Competitive when most windows are short
+    /// (short episodes).
+    MaskedLoop,
+}
+
+/// Target policy smoothing (TD3): clipped Gaussian noise on the bootstrap action.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetNoise {
+    /// Standard deviation of the Gaussian noise added to the target action.
+    pub std: f64,
+    /// The noise is clipped to `[-clip, clip]` before being added; the action is then clipped
+    /// to `[-1, 1]`.
+    pub clip: f64,
+}
+
+/// All hyper-parameters of [`crate::RdpgAgent`]. Every field has a default (see
+/// [`RdpgConfig::default`]); a JSON config may give any subset, unknown fields are rejected.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RdpgConfig {
+    /// Observation embedding used by both actor and critic (each has its own weights).
+    pub trunk: Trunk,
+    /// Number of lidar values at the end of the observation (`Lidar` trunk only). Default 10.
+    pub lidar_dim: usize,
+    /// Output channels of the lidar 1-D convolution (`Lidar` trunk). Paper: 64.
+    pub lidar_channels: usize,
+    /// Kernel size of the lidar convolution (`Lidar` trunk); max-pool has kernel = stride = 2.
+    /// Default 3.
+    pub lidar_kernel: usize,
+    /// Width of the FC layer after the lidar convolution and pooling (`Lidar` trunk). Paper: 64.
+    pub lidar_fc: usize,
+    /// Width of the FC layer on the body sensors (`Lidar` trunk). Paper: 192.
+    pub body_fc: usize,
+    /// `true`: recurrent RDPG (LSTM cores). `false`: feed-forward DDPG, the LSTM replaced by an
+    /// FC layer (+ ReLU) of the same width (paper Table I "DDPG"); scan and states are then
+    /// no-ops.
+    pub recurrent: bool,
+    /// Actor LSTM (or FC) width. Paper: 256.
+    pub actor_hidden: usize,
+    /// Critic LSTM (or FC) width. Paper: 320.
+    pub critic_hidden: usize,
+    /// Width of the critic's action branch (FC + ReLU on the action). Paper: 64.
+    pub critic_action_fc: usize,
+    /// Discount factor gamma.
+    pub gamma: f64,
+    /// Adam learning rate of the actor.
+    pub lr_actor: f64,
+    /// Adam learning rate of the critic.
+    pub lr_critic: f64,
+    /// L2 coefficient on the critic weights, added to the gradient as `critic_l2 * w`
+    /// (i.e. a loss term `critic_l2 / 2 * |w|^2`; Adam's coupled weight decay). Paper: 1e-5.
+    pub critic_l2: f64,
+    /// Adam beta1.
+    pub adam_beta1: f64,
+    /// Adam beta2.
+    pub adam_beta2: f64,
+    /// Adam epsilon.
+    pub adam_eps: f64,
+    /// Minibatch size `N` (windows per update), used by the replay sampler. Paper code: 64.
+    pub batch_size: usize,
+    /// Optimisation length `l`: steps per window that receive gradients (the critic
+    /// back-propagates through them). Paper: 8.
+    pub opt_len: usize,
+    /// Update length `u <= l`: the critic loss uses the first `u` steps of each window. Paper: 8.
+    /// `u = l = 1`, `s = 0` is baseline RDPG's TD(0).
+    pub update_len: usize,
+    /// Scan length `s`: steps before each window run without gradient to initialise the
+    /// recurrent states (paper Eq. "scan"). Paper figures: 24; Table I run: 120.
+    pub scan_len: usize,
+    /// Lambda of the interpolated TD weighting: step `i < u` of a window has weight
+    /// `lambda^i / sum_{j<u} lambda^j` (`rdpg_core::targets::interpolated_td_weights`). 1 =
+    /// uniform (the authors' code); 0 keeps only the first step.
+    pub lambda: f64,
+    /// Soft target update rate. 0 = no target networks: targets come from the behaviour networks
+    /// without gradient (the authors' code). In `(0, 1]`: target networks updated by
+    /// `target += tau * (online - target)` after every update.
+    pub tau: f64,
+    /// Back-propagate the actor loss through time over the window. Paper: off (the actor state
+    /// fed to each step is treated as a constant).
+    pub actor_bptt: bool,
+    /// Clip the global gradient norm of each network to this value (none when `None`).
+    pub grad_clip: Option<f64>,
+    /// Two critics; the bootstrap uses the minimum of the two (TD3-style); the actor follows
+    /// the first.
+    pub twin_critic: bool,
+    /// Start the actor scan from the acting-time state stored in the replay (R2D2-style) instead
+    /// of zeros. The critic scan always starts from zeros.
+    pub burn_in_from_stored_state: bool,
+    /// Target policy smoothing noise on the bootstrap action (TD3); none when `None`.
+    pub target_noise: Option<TargetNoise>,
+    /// Compute the actor gradient with the critic *after* its Adam step (Algorithm 1 order,
+    /// which needs a second no-gradient critic scan). `false`: both losses from the same
+    /// pre-update forward pass (cheaper).
+    pub actor_uses_updated_critic: bool,
+    /// How the scan handles windows with fewer than `s` real scan steps.
+    pub scan_method: ScanMethod,
+    /// Device: `"cpu"`, `"cuda"` or `"auto"`.
+    pub device: DeviceSpec,
+    /// Number of intra-op CPU threads libtorch uses (`torch.set_num_threads`); `None` leaves
+    /// libtorch's default. This setting is process-wide.
+    pub num_threads: Option<usize>,
+}
+
+impl Default for RdpgConfig {
+    fn default() -> Self {
+        Self {
+            trunk: Trunk::Lidar,
+            lidar_dim: 10,
+            lidar_channels: 64,
+            lidar_kernel: 3,
+            lidar_fc: 64,
+            body_fc: 192,
+            recurrent: true,
+            actor_hidden: 256,
+            critic_hidden: 320,
+            critic_action_fc: 64,
+            gamma: 0.99,
+            lr_actor: 1e-3,
+            lr_critic: 1e-3,
+            critic_l2: 1e-5,
+            adam_beta1: 0.9,
+            adam_beta2: 0.999,
+            adam_eps: 1e-8,
+            batch_size: 64,
+            opt_len: 8,
+            update_len: 8,
+            scan_len: 24,
+            lambda: 1.0,
+            tau: 0.0,
+            actor_bptt: false,
+            grad_clip: None,
+            twin_critic: false,
+            burn_in_from_stored_state: false,
+            target_noise: None,
+            actor_uses_updated_critic: true,
+            scan_method: ScanMethod::Grouped,
+            device: DeviceSpec::Auto,
+            num_threads: None,
+        }
+    }
+}
+
+fn bad(field: &'static str, reason: impl Into<String>) -> AgentError {
+    AgentError::Config {
+        field,
+        reason: reason.into(),
+    }
+}
+
+fn positive(field: &'static str, v: usize) -> Result<()> {
+    if v == 0 {
+        return Err(bad(field, "must be at least 1"));
+    }
+    Ok(())
+}
+
+fn finite_pos(field: &'static str, v: f64) -> Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        return Err(bad(field, format!("must be finite and > 0, got {v}")));
+    }
+    Ok(())
+}
+
+impl RdpgConfig {
+    /// The feed-forward DDPG variant of this config (LSTM replaced by FC, no scan, `l = u = 1`).
+    pub fn ddpg(mut self) -> Self {
+        self.recurrent = false;
+        self.opt_len = 1;
+        self.update_len = 1;
+        self.scan_len = 0;
+        self
+    }
+
+    /// Checks every field; the error names the first offending field.
+    pub fn validate(&self) -> Result<()> {
+        match &self.trunk {
+            Trunk::Lidar => {
+                positive("lidar_dim", self.lidar_dim)?;
+                positive("lidar_channels", self.lidar_channels)?;
+                positive("lidar_kernel", self.lidar_kernel)?;
+                positive("lidar_fc", self.lidar_fc)?;
+                positive("body_fc", self.body_fc)?;
+                if self.lidar_kernel > self.lidar_dim {
+                    return Err(bad("lidar_kernel", "must not exceed lidar_dim"));
+                }
+                if (self.lidar_dim - self.lidar_kernel + 1) < 2 {
+                    return Err(bad(
+                        "lidar_kernel",
+                        "the convolution output must have length >= 2 for the max-pool",
+                    ));
+                }
+            }
+            Trunk::Mlp { hidden } => {
+                if hidden.is_empty() {
+                    return Err(bad("trunk", "mlp.hidden must list at least one layer"));
+                }
+                if hidden.contains(&0) {
+                    return Err(bad("trunk", "mlp.hidden widths must be >= 1"));
+                }
+            }
+        }
+        positive("actor_hidden", self.actor_hidden)?;
+        positive("critic_hidden", self.critic_hidden)?;
+        positive("critic_action_fc", self.critic_action_fc)?;
+        if !(self.gamma.is_finite() && (0.0..=1.0).contains(&self.gamma)) {
+            return Err(bad(
+                "gamma",
+                format!("must be in [0, 1], got {}", self.gamma),
+            ));
+        }
+        finite_pos("lr_actor", self.lr_actor)?;
+        finite_pos("lr_critic", self.lr_critic)?;
+        if !(self.critic_l2.is_finite() && self.critic_l2 >= 0.0) {
+            return Err(bad("critic_l2", "must be finite and >= 0"));
+        }
+        if !(0.0..1.0).contains(&self.adam_beta1) {
+            return Err(bad("adam_beta1", "must be in [0, 1)"));
+        }
+        if !(0.0..1.0).contains(&self.adam_beta2) {
+            return Err(bad("adam_beta2", "must be in [0, 1)"));
+        }
+        finite_pos("adam_eps", self.adam_eps)?;
+        positive("batch_size", self.batch_size)?;
+        positive("opt_len", self.opt_len)?;
+        positive("update_len", self.update_len)?;
+        if self.update_len > self.opt_len {
+            return Err(bad(
+                "update_len",
+                format!(
+                    "u = {} must not exceed opt_len l = {}",
+                    self.update_len, self.opt_len
+                ),
+            ));
+        }
+        if !self.recurrent && self.burn_in_from_stored_state {
+            return Err(bad("burn_in_from_stored_state", "needs a recurrent agent"));
+        }
+        if !(self.lambda.is_finite() && self.lambda >= 0.0) {
+            return Err(bad(
+                "lambda",
+                format!("must be finite and >= 0, got {}", self.lambda),
+            ));
+        }
+        if !(self.tau.is_finite() && (0.0..=1.0).contains(&self.tau)) {
+            return Err(bad("tau", format!("must be in [0, 1], got {}", self.tau)));
+        }
+        if let Some(c) = self.grad_clip {
+            finite_pos("grad_clip", c)?;
+        }
+        if let Some(n) = self.target_noise {
+            if !(n.std.is_finite() && n.std >= 0.0) {
+                return Err(bad("target_noise", "std must be finite and >= 0"));
+            }
+            if !(n.clip.is_finite() && n.clip >= 0.0) {
+                return Err(bad("target_noise", "clip must be finite and >= 0"));
+            }
+        }
+        if self.num_threads == Some(0) {
+            return Err(bad("num_threads", "must be at least 1 when given"));
+        }
+        Ok(())
+    }
+
+    /// The width of the observation embedding produced by the trunk.
+    pub fn embed_dim(&self) -> usize {
+        match &self.trunk {
+            Trunk::Lidar => self.lidar_fc + self.body_fc,
+            Trunk::Mlp { hidden } => *hidden.last().unwrap_or(&0),
+        }
+    }
+
+    /// Checks that an environment with these sizes fits the trunk.
+    pub fn check_dims(&self, obs_dim: usize, act_dim: usize) -> Result<()> {
+        if act_dim == 0 {
+            return Err(AgentError::Shape("act_dim must be at least 1".into()));
+        }
+        if obs_dim == 0 {
+            return Err(AgentError::Shape("obs_dim must be at least 1".into()));
+        }
+        if self.trunk == Trunk::Lidar && obs_dim <= self.lidar_dim {
+            return Err(AgentError::Shape(format!(
+                "lidar trunk needs obs_dim > lidar_dim = {} (body sensors first), got obs_dim {obs_dim}",
+                self.lidar_dim
+            )));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_roundtrip() {
+        let c = RdpgConfig::default();
+        c.validate().unwrap();
+        let s = serde_json::to_string(&c).unwrap();
+        let back: RdpgConfig = serde_json::from_str(&s).unwrap();
+        assert_eq!(c, back);
+        assert_eq!(c.embed_dim(), 256);
+        RdpgConfig::default().ddpg().validate().unwrap();
+    }
+
+    #[test]
+    fn partial_json_and_unknown_fields() {
+        let c: RdpgConfig =
+            serde_json::from_str(r#"{"trunk": {"mlp": {"hidden": [32]}}, "tau": 0.005}"#).unwrap();
+        assert_eq!(c.trunk, Trunk::Mlp { hidden: vec![32] });
+        assert_eq!(c.tau, 0.005);
+        assert!(serde_json::from_str::<RdpgConfig>(r#"{"gama": 0.9}"#).is_err());
+        let d: RdpgConfig = serde_json::from_str(r#"{"device": "cpu"}"#).unwrap();
+        assert_eq!(d.device, DeviceSpec::Cpu);
+    }
+
+    #[test]
+    fn validate_names_the_field() {
+        let c = RdpgConfig {
+            update_len: 9,
+            ..Default::default()
+        };
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("update_len"), "{e}");
+        let c = RdpgConfig {
+            gamma: 1.5,
+            ..Default::default()
+        };
+        assert!(c.validate().unwrap_err().to_string().contains("gamma"));
+        let c = RdpgConfig {
+            trunk: Trunk::Mlp { hidden: vec![] },
+            ..Default::default()
+        };
+        assert!(c.validate().unwrap_err().to_string().contains("trunk"));
+    }
+}

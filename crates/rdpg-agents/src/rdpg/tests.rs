@@ -1,0 +1,880 @@
+//! Tests of the update's pieces (targets, weights, scan, tail bootstrap, gradients) and of
+//! the agent (determinism, checkpoints, acting).
+
+use super::*;
+use crate::bench::synthetic_batch;
+use crate::config::Trunk;
+
+const OBS: usize = 13; // 3 body sensors + 10 lidar values
+const ACT: usize = 2;
+
+/// A tiny lidar-trunk recurrent config (every layer kind present, small widths).
+fn tiny() -> RdpgConfig {
+    RdpgConfig {
+        lidar_channels: 2,
+        lidar_fc: 3,
+        body_fc: 3,
+        actor_hidden: 4,
+        critic_hidden: 5,
+        critic_action_fc: 2,
+        opt_len: 3,
+        update_len: 3,
+        scan_len: 4,
+        batch_size: 6,
+        device: DeviceSpec::Cpu,
+        ..Default::default()
+    }
+}
+
+fn mlp(obs_hidden: usize) -> RdpgConfig {
+    RdpgConfig {
+        trunk: Trunk::Mlp {
+            hidden: vec![obs_hidden],
+        },
+        ..tiny()
+    }
+}
+
+fn batch(cfg: &RdpgConfig, n: usize, short: f64, seed: u64) -> SequenceBatch {
+    let mut rng = NpRng::from_seed(seed);
+    synthetic_batch(n, cfg.scan_len, cfg.opt_len, OBS, ACT, short, &mut rng)
+}
+
+fn to_vec64(t: &Tensor) -> Vec<f64> {
+    let t = t
+        .detach()
+        .to_kind(Kind::Double)
+        .to_device(Device::Cpu)
+        .contiguous()
+        .view([-1]);
+    Vec::<f64>::try_from(&t).unwrap()
+}
+
+fn assert_close(a: &[f64], b: &[f64], tol: f64, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: lengths");
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        assert!(
+            (x - y).abs() <= tol * (1.0 + y.abs()),
+            "{what}[{i}]: {x} vs {y}"
+        );
+    }
+}
+
+/// A hand-made batch with MLP-sized observations (obs 2, act 1).
+fn hand_batch(scan: usize, opt: usize, rewards: &[&[f32]], term: &[f32]) -> SequenceBatch {
+    let n = rewards.len();
+    let t = scan + opt;
+    let mut b = SequenceBatch {
+        n,
+        scan,
+        opt,
+        obs_dim: 2,
+        act_dim: 1,
+        obs: vec![0.1; n * (t + 1) * 2],
+        actions: vec![0.0; n * t],
+        rewards: vec![0.0; n * t],
+        mask: vec![0.0; n * t],
+        scan_len: vec![scan; n],
+        opt_len: rewards.iter().map(|r| r.len()).collect(),
+        tail_terminated: term.to_vec(),
+        injected: vec![0.0; n],
+        stored_state: None,
+        state_dim: 0,
+    };
+    for (i, r) in rewards.iter().enumerate() {
+        for j in 0..scan {
+            b.mask[i * t + j] = 1.0;
+        }
+        for (j, &x) in r.iter().enumerate() {
+            b.rewards[i * t + scan + j] = x;
+            b.mask[i * t + scan + j] = 1.0;
+        }
+    }
+    b
+}
+
+fn hand_agent(gamma: f64, l: usize, u: usize, lambda: f64, scan: usize) -> RdpgAgent {
+    let cfg = RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![3] },
+        gamma,
+        opt_len: l,
+        update_len: u,
+        lambda,
+        scan_len: scan,
+        ..tiny()
+    };
+    RdpgAgent::new_with_kind(cfg, 2, 1, 0, Kind::Double).unwrap()
+}
+
+fn targets_for(agent: &RdpgAgent, b: &SequenceBatch, boot: &[f64]) -> Vec<f64> {
+    agent.check_batch(b).unwrap();
+    let p = agent.prepare(b);
+    let q_tail = Tensor::from_slice(boot).to_kind(Kind::Double);
+    to_vec64(&td_targets(&p, &q_tail))
+}
+
+#[test]
+fn td_targets_hand_computed() {
+    // gamma 0.5, l = 3: full window, the same terminated, a short truncated window (its tail
+    // bootstraps), a one-step terminated window.
+    let agent = hand_agent(0.5, 3, 3, 1.0, 2);
+    let b = hand_batch(
+        2,
+        3,
+        &[&[1.0, 2.0, 3.0], &[1.0, 2.0, 3.0], &[1.0, 2.0], &[5.0]],
+        &[0.0, 1.0, 0.0, 1.0],
+    );
+    let y = targets_for(&agent, &b, &[8.0, 8.0, 4.0, 2.0]);
+    #[rustfmt::skip]
+    let want = [
+        3.75, 5.5, 7.0,  // 1 + .5*2 + .25*3 + .125*8 ; 2 + .5*3 + .25*8 ; 3 + .5*8
+        2.75, 3.5, 3.0,  // terminated: no bootstrap
+        3.0, 4.0, 0.0,   // 1 + .5*2 + .25*4 ; 2 + .5*4 ; padding
+        5.0, 0.0, 0.0,   // terminated after one step
+    ];
+    assert_close(&y, &want, 1e-12, "y");
+
+    // Baseline RDPG: l = u = 1, s = 0 is TD(0): y = r + gamma Q(o', mu(o')).
+    let agent = hand_agent(0.99, 1, 1, 1.0, 0);
+    let b = hand_batch(0, 1, &[&[1.0], &[1.0]], &[0.0, 1.0]);
+    let y = targets_for(&agent, &b, &[10.0, 10.0]);
+    assert_close(&y, &[1.0 + 0.99 * 10.0, 1.0], 1e-12, "td0");
+}
+
+#[test]
+fn td_targets_match_reference_loop() {
+    let mut rng = NpRng::from_seed(5);
+    for &(gamma, l) in &[(0.9, 8usize), (0.99, 5), (1.0, 4)] {
+        let agent = hand_agent(gamma, l, l, 1.0, 3);
+        let lens: Vec<usize> = (0..6).map(|i| 1 + (i * 7) % l).collect();
+        let rs: Vec<Vec<f32>> = lens
+            .iter()
+            .map(|&k| (0..k).map(|_| rng.normal(0.0, 1.0) as f32).collect())
+            .collect();
+        let refs: Vec<&[f32]> = rs.iter().map(Vec::as_slice).collect();
+        let term: Vec<f32> = (0..6).map(|i| (i % 3 == 0) as u8 as f32).collect();
+        let boot: Vec<f64> = (0..6).map(|_| rng.normal(0.0, 5.0)).collect();
+        let b = hand_batch(3, l, &refs, &term);
+        let y = targets_for(&agent, &b, &boot);
+        let mut want = vec![0.0; 6 * l];
+        for n in 0..6 {
+            let len = lens[n];
+            for i in 0..len {
+                let mut acc: f64 = rs[n][i..len]
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &r)| gamma.powi(j as i32) * f64::from(r))
+                    .sum();
+                acc += gamma.powi((len - i) as i32) * boot[n] * (1.0 - f64::from(term[n]));
+                want[n * l + i] = acc;
+            }
+        }
+        assert_close(&y, &want, 1e-5, "y");
+    }
+}
+
+#[test]
+fn critic_weights_and_loss_hand_computed() {
+    // l = 3, u = 2, lambda = 0.5: weights 1/1.5 and 0.5/1.5 on the first two steps of every
+    // window; a one-step window keeps only its first weight (no renormalisation).
+    let agent = hand_agent(0.5, 3, 2, 0.5, 0);
+    let b = hand_batch(0, 3, &[&[1.0, 2.0, 3.0], &[5.0]], &[0.0, 1.0]);
+    let p = agent.prepare(&b);
+    let w = to_vec64(&p.critic_w);
+    assert_close(
+        &w,
+        &[2.0 / 3.0, 1.0 / 3.0, 0.0, 2.0 / 3.0, 0.0, 0.0],
+        1e-12,
+        "w",
+    );
+    assert_close(
+        &to_vec64(&p.actor_w),
+        &[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 1.0, 0.0, 0.0],
+        1e-12,
+        "v",
+    );
+    let y = Tensor::from_slice(&[1.0f64, 2.0, 3.0, 4.0, 5.0, 6.0]).view([2, 3]);
+    let q = Tensor::from_slice(&[0.0f64, 0.0, 100.0, 2.0, 100.0, 100.0]).view([2, 3]);
+    let loss = critic_loss_from(&p, &q, &y).double_value(&[]);
+    // window 0: 2/3 * 1 + 1/3 * 4 = 2; window 1: 2/3 * 4 = 8/3; mean over N = 2 windows.
+    assert!((loss - 7.0 / 3.0).abs() < 1e-12, "{loss}");
+    // lambda = 1, u = l: uniform 1/u on real steps.
+    let agent = hand_agent(0.5, 3, 3, 1.0, 0);
+    let b = hand_batch(0, 3, &[&[1.0, 2.0]], &[0.0]);
+    assert_close(
+        &to_vec64(&agent.prepare(&b).critic_w),
+        &[1.0 / 3.0, 1.0 / 3.0, 0.0],
+        1e-12,
+        "w1",
+    );
+    // lambda = 0 keeps only step 0.
+    let agent = hand_agent(0.5, 3, 3, 0.0, 0);
+    assert_close(
+        &to_vec64(&agent.prepare(&b).critic_w),
+        &[1.0, 0.0, 0.0],
+        1e-12,
+        "w0",
+    );
+}
+
+#[test]
+fn targets_and_loss_equal_the_rdpg_core_reference() {
+    use rdpg_core::targets::{
+        batch_tail_bootstrap_targets, critic_loss_reference, interpolated_td_weights_padded,
+    };
+    let mut rng = NpRng::from_seed(31);
+    for &(gamma, l, u, lambda) in &[
+        (0.99, 8usize, 8usize, 1.0),
+        (0.9, 6, 3, 0.7),
+        (0.5, 1, 1, 1.0),
+    ] {
+        let cfg = RdpgConfig {
+            gamma,
+            opt_len: l,
+            update_len: u,
+            lambda,
+            ..tiny()
+        };
+        let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 0, Kind::Double).unwrap();
+        let b = batch(&cfg, 9, 0.6, 40 + l as u64);
+        let p = agent.prepare(&b);
+        let tail: Vec<f64> = (0..b.n).map(|_| rng.normal(0.0, 3.0)).collect();
+        let y = td_targets(&p, &Tensor::from_slice(&tail));
+        let want = batch_tail_bootstrap_targets(&b, gamma, &tail);
+        assert_close(&to_vec64(&y), &want, 1e-5, "targets");
+        let q: Vec<f64> = (0..b.n * l).map(|_| rng.normal(0.0, 1.0)).collect();
+        let loss = critic_loss_from(&p, &Tensor::from_slice(&q).view([b.n as i64, l as i64]), &y)
+            .double_value(&[]);
+        let mask: Vec<f32> = (0..b.n)
+            .flat_map(|i| b.mask[i * b.steps() + b.scan..i * b.steps() + b.scan + l].to_vec())
+            .collect();
+        let weights = interpolated_td_weights_padded(l, u, lambda);
+        let reference = critic_loss_reference(&q, &want, &weights, &mask);
+        assert!(
+            (loss - reference).abs() <= 1e-6 * (1.0 + reference.abs()),
+            "{loss} vs {reference}"
+        );
+    }
+}
+
+/// Puts large finite garbage into every padding position of a batch.
+fn poison_padding(b: &mut SequenceBatch) {
+    let t = b.scan + b.opt;
+    for i in 0..b.n {
+        for j in 0..=t {
+            let real_obs = j >= b.scan - b.scan_len[i] && j <= b.scan + b.opt_len[i];
+            if !real_obs {
+                for k in 0..b.obs_dim {
+                    b.obs[(i * (t + 1) + j) * b.obs_dim + k] = 7.0 + (j * 13 + k) as f32;
+                }
+            }
+            if j < t && b.mask[i * t + j] == 0.0 {
+                for k in 0..b.act_dim {
+                    b.actions[(i * t + j) * b.act_dim + k] = -3.0;
+                }
+                b.rewards[i * t + j] = 0.0;
+            }
+        }
+    }
+}
+
+/// Real scan steps of window `i` as `[1, k, D]` and `[1, k, A]`.
+fn real_scan(b: &SequenceBatch, i: usize) -> (Tensor, Tensor) {
+    let t = b.scan + b.opt;
+    let k = b.scan_len[i];
+    let first = b.scan - k;
+    let o: Vec<f32> = (first..b.scan)
+        .flat_map(|j| {
+            b.obs[(i * (t + 1) + j) * b.obs_dim..(i * (t + 1) + j + 1) * b.obs_dim].to_vec()
+        })
+        .collect();
+    let a: Vec<f32> = (first..b.scan)
+        .flat_map(|j| b.actions[(i * t + j) * b.act_dim..(i * t + j + 1) * b.act_dim].to_vec())
+        .collect();
+    (
+        Tensor::from_slice(&o).view([1, k as i64, b.obs_dim as i64]),
+        Tensor::from_slice(&a).view([1, k as i64, b.act_dim as i64]),
+    )
+}
+
+#[test]
+fn scan_with_padding_equals_running_the_window_alone() {
+    for kind in [Kind::Double, Kind::Float] {
+        for method in [ScanMethod::Grouped, ScanMethod::MaskedLoop] {
+            let cfg = RdpgConfig {
+                scan_len: 6,
+                scan_method: method,
+                ..tiny()
+            };
+            let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 3, kind).unwrap();
+            let mut b = batch(&cfg, 12, 0.6, 11);
+            b.scan_len[0] = 0;
+            b.scan_len[1] = 1;
+            b = regenerate_masks(b);
+            poison_padding(&mut b);
+            assert!(b.scan_len.contains(&6) && b.scan_len.iter().any(|&k| 0 < k && k < 6));
+            let p = agent.prepare(&b);
+            let sc = tch::no_grad(|| agent.scan_all(&p));
+            let tol = if kind == Kind::Double { 1e-12 } else { 1e-5 };
+            for i in 0..b.n {
+                let (o, a) = real_scan(&b, i);
+                let (o, a) = (o.to_kind(kind), a.to_kind(kind));
+                let (ha, hc) = tch::no_grad(|| {
+                    let z = agent.actor.core.zero_state(1, kind, Device::Cpu);
+                    let ha = if b.scan_len[i] == 0 {
+                        z
+                    } else {
+                        agent.actor.core.seq(&agent.actor.input_seq(&o), &z).1
+                    };
+                    let c = &agent.critics[0];
+                    let z = c.core.zero_state(1, kind, Device::Cpu);
+                    let hc = if b.scan_len[i] == 0 {
+                        z
+                    } else {
+                        c.core.seq(&c.input_seq(&o, &a), &z).1
+                    };
+                    (ha, hc)
+                });
+                let idx = i as i64;
+                let what = format!(
+                    "{method:?} {kind:?} window {i} (scan_len {})",
+                    b.scan_len[i]
+                );
+                assert_close(
+                    &to_vec64(&sc.actor.h.select(1, idx)),
+                    &to_vec64(&ha.h),
+                    tol,
+                    &what,
+                );
+                assert_close(
+                    &to_vec64(&sc.actor.c.select(1, idx)),
+                    &to_vec64(&ha.c),
+                    tol,
+                    &what,
+                );
+                assert_close(
+                    &to_vec64(&sc.critics[0].h.select(1, idx)),
+                    &to_vec64(&hc.h),
+                    tol,
+                    &what,
+                );
+                assert_close(
+                    &to_vec64(&sc.critics[0].c.select(1, idx)),
+                    &to_vec64(&hc.c),
+                    tol,
+                    &what,
+                );
+            }
+        }
+    }
+}
+
+/// Recomputes masks (and zeroes data outside the real range) after lengths were edited.
+fn regenerate_masks(mut b: SequenceBatch) -> SequenceBatch {
+    let t = b.scan + b.opt;
+    for i in 0..b.n {
+        for j in 0..t {
+            let real = if j < b.scan {
+                j >= b.scan - b.scan_len[i]
+            } else {
+                j - b.scan < b.opt_len[i]
+            };
+            b.mask[i * t + j] = f32::from(u8::from(real));
+        }
+    }
+    poison_padding(&mut b);
+    b
+}
+
+#[test]
+fn tail_bootstrap_uses_the_state_after_the_last_real_step() {
+    let cfg = tiny();
+    let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 9, Kind::Double).unwrap();
+    let mut b = batch(&cfg, 10, 0.7, 4);
+    poison_padding(&mut b);
+    assert!(b.opt_len.iter().any(|&k| k < cfg.opt_len));
+    let p = agent.prepare(&b);
+    let sc = tch::no_grad(|| agent.scan_all(&p));
+    let (_, a_tail) = tch::no_grad(|| agent.actor_window(&p, &sc));
+    let (q_sa, q_tail) = tch::no_grad(|| agent.critic_forward(&p, &sc, &a_tail, None));
+    let t = b.scan + b.opt;
+    for i in 0..b.n {
+        // The real sequence of window i alone: scan steps, window steps, tail observation.
+        let first = b.scan - b.scan_len[i];
+        let last = b.scan + b.opt_len[i];
+        let rows = (last - first + 1) as i64;
+        let o: Vec<f32> = (first..=last)
+            .flat_map(|j| b.obs[(i * (t + 1) + j) * OBS..(i * (t + 1) + j + 1) * OBS].to_vec())
+            .collect();
+        let o = Tensor::from_slice(&o)
+            .view([1, rows, OBS as i64])
+            .to_kind(Kind::Double);
+        let (mu, _) = tch::no_grad(|| {
+            agent.actor.forward_seq(
+                &o,
+                &agent.actor.core.zero_state(1, Kind::Double, Device::Cpu),
+            )
+        });
+        let a_ref = mu.select(1, rows - 1); // mu(o_tail)
+        assert_close(
+            &to_vec64(&a_tail.select(0, i as i64)),
+            &to_vec64(&a_ref),
+            1e-12,
+            "a_tail",
+        );
+        let mut a: Vec<f32> = (first..last)
+            .flat_map(|j| b.actions[(i * t + j) * ACT..(i * t + j + 1) * ACT].to_vec())
+            .collect();
+        a.extend(to_vec64(&a_ref).iter().map(|&x| x as f32));
+        let a = Tensor::from_slice(&a)
+            .view([1, rows, ACT as i64])
+            .to_kind(Kind::Double);
+        // Replace the f32-rounded tail action by the exact one.
+        let a = Tensor::cat(&[a.narrow(1, 0, rows - 1), a_ref.unsqueeze(1)], 1);
+        let c = &agent.critics[0];
+        let (q, _) = tch::no_grad(|| {
+            c.forward_seq(&o, &a, &c.core.zero_state(1, Kind::Double, Device::Cpu))
+        });
+        let q = to_vec64(&q);
+        let k = b.scan_len[i];
+        let len = b.opt_len[i];
+        assert_close(
+            &to_vec64(&q_sa[0].select(0, i as i64).narrow(0, 0, len as i64)),
+            &q[k..k + len],
+            1e-10,
+            "q_sa",
+        );
+        assert_close(&[to_vec64(&q_tail)[i]], &[q[k + len]], 1e-10, "q_tail");
+    }
+}
+
+/// Central finite differences of `loss` w.r.t. a few entries of every variable of `vs`,
+/// compared to the autograd gradient (already in the variables' `.grad`).
+fn check_grads(vs: &VarStore, loss: &dyn Fn() -> f64, what: &str) {
+    let eps = 1e-6;
+    let mut checked = 0;
+    for (name, var) in sorted_vars(vs) {
+        let n = var.numel() as i64;
+        let g = var.grad();
+        assert!(g.defined(), "{what}: no gradient for {name}");
+        let g = to_vec64(&g);
+        for idx in [0, n / 2, n - 1] {
+            let bump = |delta: f64| {
+                tch::no_grad(|| {
+                    let _ = var.view([-1]).narrow(0, idx, 1).g_add_scalar_(delta);
+                })
+            };
+            bump(eps);
+            let lp = loss();
+            bump(-2.0 * eps);
+            let lm = loss();
+            bump(eps);
+            let fd = (lp - lm) / (2.0 * eps);
+            let ad = g[idx as usize];
+            assert!(
+                (fd - ad).abs() <= 1e-6 * (1.0 + ad.abs()),
+                "{what}: d/d {name}[{idx}]: autograd {ad} vs finite difference {fd}"
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 10);
+}
+
+#[test]
+fn critic_loss_gradient_matches_finite_differences() {
+    for recurrent in [true, false] {
+        let cfg = RdpgConfig {
+            recurrent,
+            lambda: 0.7,
+            update_len: 2,
+            ..tiny()
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 21, Kind::Double).unwrap();
+        let b = batch(&cfg, 5, 0.5, 8);
+        let p = agent.prepare(&b);
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        let (_, a_tail) = tch::no_grad(|| agent.actor_window(&p, &sc));
+        let (_, q_tail) = agent.critic_forward(&p, &sc, &a_tail, None);
+        // The estimator treats the target and the scanned state as constants.
+        let y = tch::no_grad(|| td_targets(&p, &q_tail.detach()));
+        let loss = |agent: &RdpgAgent| {
+            let (q, _) = agent.critic_forward(&p, &sc, &a_tail, None);
+            critic_loss_from(&p, &q[0], &y)
+        };
+        agent.critic_opt.zero_grad();
+        loss(&agent).backward();
+        let f = || tch::no_grad(|| loss(&agent).double_value(&[]));
+        check_grads(
+            &agent.critic_vs[0],
+            &f,
+            &format!("critic (recurrent {recurrent})"),
+        );
+    }
+}
+
+#[test]
+fn actor_loss_gradient_matches_finite_differences() {
+    for bptt in [false, true] {
+        let cfg = RdpgConfig {
+            actor_bptt: bptt,
+            ..tiny()
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 22, Kind::Double).unwrap();
+        let b = batch(&cfg, 5, 0.5, 9);
+        let p = agent.prepare(&b);
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        // Per-step gradient: the carried actor states are constants computed once.
+        let (states, _) = tch::no_grad(|| agent.actor_window(&p, &sc));
+        assert_eq!(states.is_some(), !bptt);
+        let cs = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
+        let loss = |agent: &RdpgAgent| {
+            let input = match &states {
+                Some((h, c)) => ActorInput::Detached { h, c },
+                None => ActorInput::Bptt { h0: &sc.actor },
+            };
+            actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs)
+        };
+        agent.actor_opt.zero_grad();
+        loss(&agent).backward();
+        let f = || tch::no_grad(|| loss(&agent).double_value(&[]));
+        check_grads(&agent.actor_vs, &f, &format!("actor (bptt {bptt})"));
+    }
+}
+
+#[test]
+fn bptt_and_per_step_gradients_differ_but_agree_on_the_first_step() {
+    // With l = 1 there is no time to back-propagate through: both must agree exactly.
+    let mut grads = Vec::new();
+    for bptt in [false, true] {
+        let cfg = RdpgConfig {
+            actor_bptt: bptt,
+            opt_len: 1,
+            update_len: 1,
+            ..tiny()
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 23, Kind::Double).unwrap();
+        let b = batch(&cfg, 4, 0.0, 10);
+        let p = agent.prepare(&b);
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        let (states, _) = tch::no_grad(|| agent.actor_window(&p, &sc));
+        let cs = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
+        let input = match &states {
+            Some((h, c)) => ActorInput::Detached { h, c },
+            None => ActorInput::Bptt { h0: &sc.actor },
+        };
+        agent.actor_opt.zero_grad();
+        actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs).backward();
+        grads.push(
+            sorted_vars(&agent.actor_vs)
+                .iter()
+                .flat_map(|(_, v)| to_vec64(&v.grad()))
+                .collect::<Vec<_>>(),
+        );
+    }
+    assert_close(&grads[0], &grads[1], 1e-12, "l = 1");
+}
+
+fn full_cfg() -> RdpgConfig {
+    RdpgConfig {
+        tau: 0.05,
+        twin_critic: true,
+        grad_clip: Some(1.0),
+        target_noise: Some(crate::config::TargetNoise {
+            std: 0.2,
+            clip: 0.5,
+        }),
+        ..tiny()
+    }
+}
+
+#[test]
+fn same_seed_same_weights_after_updates() {
+    for cfg in [
+        tiny(),
+        full_cfg(),
+        RdpgConfig {
+            actor_uses_updated_critic: false,
+            actor_bptt: true,
+            ..tiny()
+        },
+    ] {
+        let run = || {
+            let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 42).unwrap();
+            let mut stats = Vec::new();
+            for k in 0..4 {
+                stats.push(agent.update(&batch(&cfg, 6, 0.4, 100 + k)));
+            }
+            (agent.weights(), stats)
+        };
+        let (w1, s1) = run();
+        let (w2, s2) = run();
+        assert_eq!(s1, s2);
+        assert_eq!(w1, w2);
+        // A different seed gives different weights.
+        let other = RdpgAgent::new(cfg.clone(), OBS, ACT, 43).unwrap();
+        assert_ne!(
+            other.weights(),
+            RdpgAgent::new(cfg.clone(), OBS, ACT, 42).unwrap().weights()
+        );
+    }
+}
+
+#[test]
+fn updates_change_weights_and_stats_are_finite() {
+    for cfg in [
+        tiny(),
+        full_cfg(),
+        tiny().ddpg(),
+        mlp(8),
+        RdpgConfig {
+            scan_method: ScanMethod::MaskedLoop,
+            ..tiny()
+        },
+    ] {
+        // Widths large enough that no ReLU layer is dead for the whole batch at init.
+        let cfg = RdpgConfig {
+            critic_action_fc: 16,
+            actor_hidden: 16,
+            critic_hidden: 16,
+            ..cfg
+        };
+        let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 1).unwrap();
+        let w0 = agent.weights();
+        let s = agent.update(&batch(&cfg, 6, 0.5, 3));
+        assert!(
+            s.critic_loss.is_finite() && s.actor_loss.is_finite() && s.q_mean.is_finite(),
+            "{s:?}"
+        );
+        let w1 = agent.weights();
+        for ((n, a), (_, b)) in w0.iter().zip(&w1) {
+            if n.starts_with("actor.") || n.starts_with("critic") {
+                assert_ne!(a, b, "{n} did not move");
+            }
+        }
+        assert_eq!(agent.updates(), 1);
+    }
+}
+
+#[test]
+fn scan_methods_give_the_same_update() {
+    let run = |method| {
+        let cfg = RdpgConfig {
+            scan_method: method,
+            ..tiny()
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 5, Kind::Double).unwrap();
+        let s = agent.update(&batch(&cfg, 8, 0.6, 77));
+        (agent.weights(), s)
+    };
+    let (wa, sa) = run(ScanMethod::Grouped);
+    let (wb, sb) = run(ScanMethod::MaskedLoop);
+    assert!((sa.critic_loss - sb.critic_loss).abs() < 1e-10);
+    for ((n, a), (_, b)) in wa.iter().zip(&wb) {
+        assert_close(a, b, 1e-10, n);
+    }
+}
+
+fn tmp_dir(tag: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("rdpg-agents-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn save_load_gives_identical_outputs_and_next_update() {
+    for (tag, cfg) in [("plain", tiny()), ("full", full_cfg())] {
+        let mut a = RdpgAgent::new(cfg.clone(), OBS, ACT, 7).unwrap();
+        for k in 0..3 {
+            a.update(&batch(&cfg, 6, 0.3, k));
+        }
+        let dir = tmp_dir(tag);
+        a.save(&dir).unwrap();
+        let mut b = RdpgAgent::load(&dir).unwrap();
+        assert_eq!(b.updates(), 3);
+        assert_eq!(a.weights(), b.weights());
+        // Same actions from the same states.
+        let obs: Vec<f32> = (0..2 * OBS).map(|i| (i as f32 * 0.37).sin()).collect();
+        let (mut sa, mut sb) = (a.initial_state(2), b.initial_state(2));
+        for _ in 0..3 {
+            assert_eq!(a.act(&obs, &mut sa), b.act(&obs, &mut sb));
+        }
+        // The next update is bit-identical (Adam moments, step count and noise generator
+        // restored).
+        let nb = batch(&cfg, 6, 0.3, 99);
+        assert_eq!(a.update(&nb), b.update(&nb));
+        assert_eq!(a.weights(), b.weights());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+#[test]
+fn load_rejects_missing_files() {
+    let dir = tmp_dir("missing");
+    assert!(RdpgAgent::load(&dir).is_err());
+}
+
+#[test]
+fn acting_matches_the_sequence_forward_and_resets() {
+    let cfg = tiny();
+    let mut agent = RdpgAgent::new(cfg, OBS, ACT, 2).unwrap();
+    let n_envs = 3;
+    let steps = 5;
+    let obs: Vec<Vec<f32>> = (0..steps)
+        .map(|t| {
+            (0..n_envs * OBS)
+                .map(|i| ((i + 7 * t) as f32 * 0.13).cos())
+                .collect()
+        })
+        .collect();
+    let mut st = agent.initial_state(n_envs);
+    assert_eq!(st.state_dim(), 8);
+    assert_eq!(agent.state_dim(), 8);
+    let acts: Vec<Vec<f32>> = obs.iter().map(|o| agent.act(o, &mut st)).collect();
+    // The same observations as one [n_envs, T, D] sequence.
+    let mut seq = vec![0.0f32; n_envs * steps * OBS];
+    for (t, o) in obs.iter().enumerate() {
+        for e in 0..n_envs {
+            seq[(e * steps + t) * OBS..(e * steps + t + 1) * OBS]
+                .copy_from_slice(&o[e * OBS..(e + 1) * OBS]);
+        }
+    }
+    let seq = Tensor::from_slice(&seq).view([n_envs as i64, steps as i64, OBS as i64]);
+    let (mu, _) = tch::no_grad(|| {
+        agent.actor.forward_seq(
+            &seq,
+            &agent.actor.core.zero_state(3, Kind::Float, Device::Cpu),
+        )
+    });
+    for (t, a) in acts.iter().enumerate() {
+        for e in 0..n_envs {
+            let want = to_vec64(&mu.select(0, e as i64).select(0, t as i64));
+            let got: Vec<f64> = a[e * ACT..(e + 1) * ACT]
+                .iter()
+                .map(|&x| f64::from(x))
+                .collect();
+            assert_close(&got, &want, 1e-5, "act");
+        }
+    }
+    assert!(st.env_state(1).iter().any(|&x| x != 0.0));
+    agent.reset_state(&mut st, Some(1));
+    assert!(st.env_state(1).iter().all(|&x| x == 0.0));
+    assert!(st.env_state(0).iter().any(|&x| x != 0.0));
+    let s0 = st.env_state(0);
+    st.set_env_state(2, &s0);
+    assert_eq!(st.env_state(2), s0);
+    assert_eq!(st.to_vec().len(), 3 * 8);
+    agent.reset_state(&mut st, None);
+    assert!(st.to_vec().iter().all(|&x| x == 0.0));
+}
+
+#[test]
+fn burn_in_starts_the_actor_scan_from_the_stored_state() {
+    let cfg = RdpgConfig {
+        burn_in_from_stored_state: true,
+        ..tiny()
+    };
+    let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 4, Kind::Double).unwrap();
+    let mut b = batch(&cfg, 5, 0.5, 12);
+    assert!(agent.check_batch(&b).is_err(), "stored states are required");
+    let mut rng = NpRng::from_seed(1);
+    b.state_dim = 8;
+    b.stored_state = Some((0..5 * 8).map(|_| rng.normal(0.0, 0.5) as f32).collect());
+    agent.check_batch(&b).unwrap();
+    let p = agent.prepare(&b);
+    let sc = tch::no_grad(|| agent.scan_all(&p));
+    let st = b.stored_state.as_ref().unwrap();
+    for i in 0..b.n {
+        let (o, _) = real_scan(&b, i);
+        let init = Tensor::from_slice(&st[i * 8..(i + 1) * 8]).to_kind(Kind::Double);
+        let init = RecState {
+            h: init.narrow(0, 0, 4).view([1, 1, 4]),
+            c: init.narrow(0, 4, 4).view([1, 1, 4]),
+        };
+        let want = if b.scan_len[i] == 0 {
+            init
+        } else {
+            tch::no_grad(|| {
+                agent
+                    .actor
+                    .core
+                    .seq(&agent.actor.input_seq(&o.to_kind(Kind::Double)), &init)
+                    .1
+            })
+        };
+        assert_close(
+            &to_vec64(&sc.actor.h.select(1, i as i64)),
+            &to_vec64(&want.h),
+            1e-12,
+            "h",
+        );
+        assert_close(
+            &to_vec64(&sc.actor.c.select(1, i as i64)),
+            &to_vec64(&want.c),
+            1e-12,
+            "c",
+        );
+    }
+}
+
+#[test]
+fn critic_regresses_rewards_when_gamma_is_zero() {
+    for cfg in [tiny(), tiny().ddpg()] {
+        let cfg = RdpgConfig {
+            gamma: 0.0,
+            lr_critic: 3e-3,
+            ..cfg
+        };
+        let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 6).unwrap();
+        let b = batch(&cfg, 8, 0.3, 5);
+        let first = agent.update(&b).critic_loss;
+        let mut last = first;
+        for _ in 0..150 {
+            last = agent.update(&b).critic_loss;
+        }
+        assert!(last < 0.3 * first, "critic loss {first} -> {last}");
+    }
+}
+
+#[test]
+fn check_batch_rejects_inconsistent_batches() {
+    let cfg = tiny();
+    let agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 0).unwrap();
+    let good = batch(&cfg, 4, 0.5, 1);
+    agent.check_batch(&good).unwrap();
+    let mut b = good.clone();
+    b.obs_dim = 12;
+    assert!(agent.check_batch(&b).is_err());
+    let mut b = good.clone();
+    b.opt_len[0] = 0;
+    assert!(agent.check_batch(&b).is_err());
+    let mut b = good;
+    let t = b.scan + b.opt;
+    b.mask[t - 1] = 1.0 - b.mask[t - 1];
+    assert!(agent.check_batch(&b).is_err());
+}
+
+#[test]
+fn acting_params_swap_in_a_perturbed_actor() {
+    let mut agent = RdpgAgent::new(tiny(), OBS, ACT, 8).unwrap();
+    let obs: Vec<f32> = (0..2 * OBS).map(|i| (i as f32 * 0.21).sin()).collect();
+    let mut params = agent.actor_params();
+    assert_eq!(params.len(), agent.actor_param_count());
+    let reference = agent.act_unperturbed(&obs, &mut agent.initial_state(2));
+    // The same parameters act identically.
+    agent.set_acting_params(Some(&params)).unwrap();
+    assert_eq!(agent.act(&obs, &mut agent.initial_state(2)), reference);
+    // Perturbed parameters act differently; the trained actor is untouched.
+    for p in params.iter_mut() {
+        *p += 0.05;
+    }
+    agent.set_acting_params(Some(&params)).unwrap();
+    assert_ne!(agent.act(&obs, &mut agent.initial_state(2)), reference);
+    assert_eq!(
+        agent.act_unperturbed(&obs, &mut agent.initial_state(2)),
+        reference
+    );
+    agent.set_acting_params(None).unwrap();
+    assert_eq!(agent.act(&obs, &mut agent.initial_state(2)), reference);
+    assert!(agent.set_acting_params(Some(&params[1..])).is_err());
+}

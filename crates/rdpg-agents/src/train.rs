@@ -1,0 +1,640 @@
+//! The off-policy training loop shared by RDPG and DDPG (Algorithm 1's outer loop).
+//!
+//! Acting runs on a [`VecEnv`] (N environments on worker threads) with batched policy
+//! inference; every environment keeps its own recurrent actor state and exploration noise.
+//! Each finished episode goes to the [`EpisodicReplay`] whole, and after the warm-up the agent
+//! makes `updates_per_step` updates per environment step on windows sampled from it.
+//!
+//! Everything random is seeded: the networks (`seed`), the environments (a seed schedule, one
+//! seed per episode, see [`rdpg_envs::vector::episode_seed`]), warm-up actions, noise and
+//! replay sampling (one [`NpRng`]). A [`Trainer`] can be checkpointed at any step
+//! ([`Trainer::save`]) and resumed ([`Trainer::load`]) bit-identically: episodes in progress
+//! are rebuilt from their seed and actions.
+
+use std::path::Path;
+
+use rdpg_core::noise::{ActionNoise, Gaussian, OrnsteinUhlenbeck, OuConfig};
+use rdpg_core::replay::{Episode, EpisodicReplay, ReplayConfig};
+use rdpg_core::rng::NpRng;
+use rdpg_envs::{EnvOptions, VecEnv, WalkerReward};
+use serde::{Deserialize, Serialize};
+
+use crate::{ActorState, AgentError, RdpgAgent, RdpgConfig, Result, UpdateStats};
+
+/// Exploration noise added to the deterministic policy's actions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ExplorationConfig {
+    /// No noise.
+    None,
+    /// Ornstein–Uhlenbeck noise, reset at every episode start.
+    Ou {
+        /// Mean-reversion rate θ.
+        theta: f64,
+        /// Scale σ.
+        sigma: f64,
+    },
+    /// Independent Gaussian noise of standard deviation `sigma`.
+    Gaussian {
+        /// Standard deviation.
+        sigma: f64,
+    },
+}
+
+impl Default for ExplorationConfig {
+    fn default() -> Self {
+        Self::Ou {
+            theta: 0.15,
+            sigma: 0.2,
+        }
+    }
+}
+
+/// Everything about a training run except the learner's own hyper-parameters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Environment id (see `rdpg_envs::ENV_IDS`).
+    pub env: String,
+    /// Observation components hidden from the agent (indices into the env's observation).
+    pub hide_obs: Vec<usize>,
+    /// Walkers: reward used for learning (`stock` or `paper`); evaluation always reports the
+    /// stock return.
+    pub reward: WalkerReward,
+    /// Budget in environment steps (over all environments).
+    pub total_steps: u64,
+    /// Steps of uniform random actions before the first update.
+    pub warmup_steps: u64,
+    /// Gradient updates per environment step (fractional values accumulate).
+    pub updates_per_step: f64,
+    /// Environments acting in parallel.
+    pub num_envs: usize,
+    /// Worker threads stepping them.
+    pub workers: usize,
+    /// Replay capacity in transitions (whole episodes are evicted oldest first).
+    pub replay_capacity: usize,
+    /// Exploration noise.
+    pub exploration: ExplorationConfig,
+    /// Evaluate every this many environment steps (0: only at the end).
+    pub eval_every: u64,
+    /// Deterministic evaluation episodes.
+    pub eval_episodes: usize,
+    /// First seed of the held-out evaluation episodes (episode k uses `eval_seed + k`).
+    pub eval_seed: u64,
+    /// Master seed of the run.
+    pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            env: "PendulumNoVel-v1".into(),
+            hide_obs: Vec::new(),
+            reward: WalkerReward::Stock,
+            total_steps: 50_000,
+            warmup_steps: 2_000,
+            updates_per_step: 1.0,
+            num_envs: 1,
+            workers: 1,
+            replay_capacity: 100_000,
+            exploration: ExplorationConfig::default(),
+            eval_every: 5_000,
+            eval_episodes: 10,
+            eval_seed: 1_000_000,
+            seed: 0,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Checks every field; the error names the offending one.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &'static str, reason: String| Err(AgentError::Config { field, reason });
+        if !rdpg_envs::ENV_IDS.contains(&self.env.as_str()) {
+            return bad(
+                "train.env",
+                format!(
+                    "unknown id {:?} (known: {})",
+                    self.env,
+                    rdpg_envs::ENV_IDS.join(", ")
+                ),
+            );
+        }
+        if self.total_steps == 0 {
+            return bad("train.total_steps", "must be positive".into());
+        }
+        if !(self.updates_per_step.is_finite() && self.updates_per_step >= 0.0) {
+            return bad(
+                "train.updates_per_step",
+                format!("{} is not a non-negative number", self.updates_per_step),
+            );
+        }
+        if self.num_envs == 0 {
+            return bad("train.num_envs", "must be at least 1".into());
+        }
+        if self.workers == 0 {
+            return bad("train.workers", "must be at least 1".into());
+        }
+        if self.replay_capacity == 0 {
+            return bad("train.replay_capacity", "must be positive".into());
+        }
+        if self.eval_episodes == 0 {
+            return bad("train.eval_episodes", "must be at least 1".into());
+        }
+        match self.exploration {
+            ExplorationConfig::Ou { theta, sigma }
+                if theta.is_nan() || sigma.is_nan() || theta <= 0.0 || sigma < 0.0 =>
+            {
+                bad(
+                    "train.exploration",
+                    format!("OU needs theta > 0 and sigma >= 0 (got {theta}, {sigma})"),
+                )
+            }
+            ExplorationConfig::Gaussian { sigma } if sigma.is_nan() || sigma < 0.0 => bad(
+                "train.exploration",
+                format!("Gaussian needs sigma >= 0 (got {sigma})"),
+            ),
+            _ => Ok(()),
+        }
+    }
+
+    fn env_options(&self) -> EnvOptions {
+        EnvOptions {
+            reward: self.reward,
+            hide_obs: self.hide_obs.clone(),
+            max_episode_steps: None,
+        }
+    }
+}
+
+/// A finished training episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeRecord {
+    /// Environment steps taken by the run when the episode ended.
+    pub step: u64,
+    /// Which environment of the vector env.
+    pub env: usize,
+    /// Sum of the training reward (with exploration noise).
+    pub ret: f64,
+    /// Sum of the stock reward (equals `ret` unless training on another reward).
+    pub stock_return: f64,
+    /// Length in steps.
+    pub len: usize,
+    /// Reached the end of the course without falling (walkers).
+    pub success: bool,
+}
+
+/// A deterministic evaluation on held-out seeds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalRecord {
+    /// Environment steps of the run at evaluation time.
+    pub step: u64,
+    /// Mean stock return.
+    pub mean_return: f64,
+    /// Standard deviation of the stock return.
+    pub std_return: f64,
+    /// Share of episodes that reached the end of the course.
+    pub success_rate: f64,
+    /// Every episode's stock return.
+    pub returns: Vec<f64>,
+}
+
+/// Receives progress from [`Trainer::run`] (metrics files, progress bars, tests).
+pub trait TrainObserver {
+    /// An episode finished.
+    fn on_episode(&mut self, _rec: &EpisodeRecord) {}
+    /// An evaluation finished.
+    fn on_eval(&mut self, _rec: &EvalRecord) {}
+    /// An update was made at environment step `step`.
+    fn on_update(&mut self, _step: u64, _stats: &UpdateStats) {}
+    /// Called every environment step; return `true` to stop (e.g. Ctrl-C, to save first).
+    fn should_stop(&mut self, _step: u64) -> bool {
+        false
+    }
+}
+
+/// An observer that ignores everything.
+pub struct Quiet;
+impl TrainObserver for Quiet {}
+
+/// The transitions of an episode in progress.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+struct OpenEpisode {
+    obs: Vec<f32>,
+    /// Actions in the agent's normalised `[-1, 1]` space (what the replay stores).
+    actions: Vec<f32>,
+    /// Actions as sent to the env (for rebuilding the episode on resume).
+    env_actions: Vec<Vec<f32>>,
+    rewards: Vec<f32>,
+    states: Vec<f32>,
+    ret: f64,
+    stock_ret: f64,
+}
+
+/// Counters and generators saved with a checkpoint.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct LoopState {
+    steps: u64,
+    update_debt: f64,
+    rng: NpRng,
+    noise: Vec<ActionNoise>,
+    open: Vec<OpenEpisode>,
+    episode_index: Vec<u64>,
+    actor_state: Vec<f32>,
+    next_eval: u64,
+}
+
+/// Off-policy training of an [`RdpgAgent`] (recurrent RDPG or feed-forward DDPG).
+pub struct Trainer {
+    cfg: TrainConfig,
+    agent: RdpgAgent,
+    replay: EpisodicReplay,
+    venv: VecEnv,
+    obs: Vec<Vec<f32>>,
+    act_state: ActorState,
+    low: Vec<f32>,
+    high: Vec<f32>,
+    st: LoopState,
+}
+
+impl Trainer {
+    /// A fresh run.
+    pub fn new(cfg: TrainConfig, agent_cfg: RdpgConfig) -> Result<Self> {
+        cfg.validate()?;
+        let probe = rdpg_envs::make_with(&cfg.env, &cfg.env_options()).map_err(env_err)?;
+        let (obs_dim, act_dim) = (probe.observation_space().dim(), probe.action_space().dim());
+        let (low, high) = (
+            probe.action_space().low.clone(),
+            probe.action_space().high.clone(),
+        );
+        let agent = RdpgAgent::new(agent_cfg, obs_dim, act_dim, cfg.seed)?;
+        let mut venv = VecEnv::make(&cfg.env, &cfg.env_options(), cfg.num_envs, cfg.workers)
+            .map_err(env_err)?;
+        let obs = venv
+            .reset_scheduled(cfg.seed, &vec![0; cfg.num_envs])
+            .map_err(env_err)?;
+        let state_dim = if agent.config().burn_in_from_stored_state {
+            agent.state_dim()
+        } else {
+            0
+        };
+        let replay = EpisodicReplay::new(
+            ReplayConfig::new(cfg.replay_capacity, obs_dim, act_dim).with_state_dim(state_dim),
+        )
+        .map_err(|e| AgentError::Config {
+            field: "replay",
+            reason: e.to_string(),
+        })?;
+        let noise = (0..cfg.num_envs)
+            .map(|_| make_noise(&cfg.exploration, act_dim))
+            .collect();
+        let open = obs
+            .iter()
+            .map(|o| OpenEpisode {
+                obs: o.clone(),
+                ..Default::default()
+            })
+            .collect();
+        let act_state = agent.initial_state(cfg.num_envs);
+        let st = LoopState {
+            steps: 0,
+            update_debt: 0.0,
+            rng: NpRng::from_seed(cfg.seed ^ 0x5EED_F07E_A1A1),
+            noise,
+            open,
+            episode_index: vec![0; cfg.num_envs],
+            actor_state: Vec::new(),
+            next_eval: if cfg.eval_every > 0 {
+                cfg.eval_every
+            } else {
+                u64::MAX
+            },
+        };
+        Ok(Self {
+            cfg,
+            agent,
+            replay,
+            venv,
+            obs,
+            act_state,
+            low,
+            high,
+            st,
+        })
+    }
+
+    /// The agent being trained.
+    pub fn agent(&self) -> &RdpgAgent {
+        &self.agent
+    }
+
+    /// The run's configuration.
+    pub fn config(&self) -> &TrainConfig {
+        &self.cfg
+    }
+
+    /// Environment steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.st.steps
+    }
+
+    /// The replay buffer.
+    pub fn replay(&self) -> &EpisodicReplay {
+        &self.replay
+    }
+
+    fn to_env_action(&self, a: &[f32]) -> Vec<f32> {
+        a.iter()
+            .zip(self.low.iter().zip(&self.high))
+            .map(|(&x, (&lo, &hi))| lo + (x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (hi - lo))
+            .collect()
+    }
+
+    /// Runs until `until` environment steps (capped by the budget) or until the observer asks
+    /// to stop. Returns the step count reached.
+    pub fn run(&mut self, until: u64, obs_cb: &mut dyn TrainObserver) -> Result<u64> {
+        let until = until.min(self.cfg.total_steps);
+        let n = self.cfg.num_envs;
+        let act_dim = self.agent.act_dim();
+        let stored = self.replay.config().state_dim > 0;
+        while self.st.steps < until {
+            if obs_cb.should_stop(self.st.steps) {
+                break;
+            }
+            // Acting: a_t = mu(o_t, h_{t-1}) + N_t (Algorithm 1), uniform during warm-up.
+            let states: Vec<Vec<f32>> = if stored {
+                (0..n).map(|i| self.act_state.env_state(i)).collect()
+            } else {
+                vec![Vec::new(); n]
+            };
+            let flat: Vec<f32> = self.obs.concat();
+            let mu = self.agent.act(&flat, &mut self.act_state);
+            let warm = self.st.steps < self.cfg.warmup_steps;
+            let actions: Vec<Vec<f32>> = (0..n)
+                .map(|i| {
+                    if warm {
+                        (0..act_dim)
+                            .map(|_| self.st.rng.uniform(-1.0, 1.0) as f32)
+                            .collect()
+                    } else {
+                        let eps = self.st.noise[i].sample(&mut self.st.rng);
+                        mu[i * act_dim..(i + 1) * act_dim]
+                            .iter()
+                            .zip(eps)
+                            .map(|(m, e)| (m + e).clamp(-1.0, 1.0))
+                            .collect()
+                    }
+                })
+                .collect();
+            let env_actions: Vec<Vec<f32>> =
+                actions.iter().map(|a| self.to_env_action(a)).collect();
+            let steps = self.venv.step(&env_actions).map_err(env_err)?;
+            self.st.steps += n as u64;
+            for (i, s) in steps.into_iter().enumerate() {
+                let ep = &mut self.st.open[i];
+                let next = s.final_obs.as_ref().unwrap_or(&s.obs);
+                ep.obs.extend_from_slice(next);
+                ep.actions.extend_from_slice(&actions[i]);
+                ep.env_actions.push(env_actions[i].clone());
+                ep.rewards.push(s.reward as f32);
+                ep.states.extend_from_slice(&states[i]);
+                ep.ret += s.reward;
+                ep.stock_ret += s.info.stock_reward.unwrap_or(s.reward);
+                if s.final_obs.is_some() {
+                    let done = std::mem::replace(
+                        ep,
+                        OpenEpisode {
+                            obs: s.obs.clone(),
+                            ..Default::default()
+                        },
+                    );
+                    let rec = EpisodeRecord {
+                        step: self.st.steps,
+                        env: i,
+                        ret: done.ret,
+                        stock_return: done.stock_ret,
+                        len: done.rewards.len(),
+                        success: s.info.success,
+                    };
+                    self.replay
+                        .add_episode(Episode {
+                            obs: done.obs,
+                            actions: done.actions,
+                            rewards: done.rewards,
+                            states: done.states,
+                            terminated: s.terminated,
+                            truncated: s.truncated && !s.terminated,
+                            injected: false,
+                        })
+                        .map_err(|e| AgentError::Config {
+                            field: "replay",
+                            reason: e.to_string(),
+                        })?;
+                    self.agent.reset_state(&mut self.act_state, Some(i));
+                    self.st.noise[i].reset();
+                    obs_cb.on_episode(&rec);
+                }
+                self.obs[i] = s.obs;
+            }
+            self.st.episode_index = self.venv.episode_indices();
+            // Learning: Update() of Algorithm 1 on sampled sub-trajectories.
+            if !warm && self.replay.num_episodes() > 0 {
+                self.st.update_debt += self.cfg.updates_per_step * n as f64;
+                let c = self.agent.config();
+                let (b, s, l) = (c.batch_size, c.scan_len, c.opt_len);
+                while self.st.update_debt >= 1.0 {
+                    self.st.update_debt -= 1.0;
+                    let Some(batch) = self.replay.sample(&mut self.st.rng, b, s, l) else {
+                        break;
+                    };
+                    let stats = self.agent.update(&batch);
+                    obs_cb.on_update(self.st.steps, &stats);
+                }
+            }
+            if self.st.steps >= self.st.next_eval {
+                let rec = self.evaluate()?;
+                obs_cb.on_eval(&rec);
+                self.st.next_eval = self.st.next_eval.saturating_add(self.cfg.eval_every);
+            }
+        }
+        Ok(self.st.steps)
+    }
+
+    /// Deterministic evaluation (no noise) on the held-out seeds `eval_seed..`, on the stock
+    /// reward, with a fresh recurrent state per episode.
+    pub fn evaluate(&mut self) -> Result<EvalRecord> {
+        let opts = EnvOptions {
+            reward: WalkerReward::Stock,
+            ..self.cfg.env_options()
+        };
+        let mut env = rdpg_envs::make_with(&self.cfg.env, &opts).map_err(env_err)?;
+        let mut returns = Vec::with_capacity(self.cfg.eval_episodes);
+        let mut successes = 0;
+        for k in 0..self.cfg.eval_episodes {
+            let (mut obs, _) = env
+                .reset(Some(self.cfg.eval_seed + k as u64))
+                .map_err(env_err)?;
+            let mut state = self.agent.initial_state(1);
+            let mut ret = 0.0;
+            loop {
+                let a = self.agent.act(&obs, &mut state);
+                let s = env.step(&self.to_env_action(&a)).map_err(env_err)?;
+                ret += s.reward;
+                if s.done() {
+                    successes += s.info.success as usize;
+                    break;
+                }
+                obs = s.obs;
+            }
+            returns.push(ret);
+        }
+        let m = returns.len() as f64;
+        let mean = returns.iter().sum::<f64>() / m;
+        let std = (returns.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / m).sqrt();
+        Ok(EvalRecord {
+            step: self.st.steps,
+            mean_return: mean,
+            std_return: std,
+            success_rate: successes as f64 / m,
+            returns,
+        })
+    }
+
+    /// Writes a checkpoint to `dir`: the agent (networks, optimiser moments), the replay
+    /// buffer, generators, noise, episodes in progress and counters.
+    pub fn save(&mut self, dir: &Path) -> Result<()> {
+        std::fs::create_dir_all(dir)?;
+        self.agent.save(dir.join("agent"))?;
+        self.st.actor_state = self.act_state.to_vec();
+        write_bin(&dir.join("replay.bin"), &self.replay)?;
+        write_bin(&dir.join("loop.bin"), &self.st)?;
+        std::fs::write(
+            dir.join("train.json"),
+            serde_json::to_string_pretty(&self.cfg)?,
+        )?;
+        Ok(())
+    }
+
+    /// Resumes a checkpoint written by [`Trainer::save`]; continuing gives the same result as
+    /// never having stopped.
+    pub fn load(dir: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(dir.join("train.json")).map_err(|e| {
+            AgentError::Checkpoint(format!("{}: {e}", dir.join("train.json").display()))
+        })?;
+        let cfg: TrainConfig = serde_json::from_str(&text).map_err(|e| {
+            AgentError::Checkpoint(format!("{}: {e}", dir.join("train.json").display()))
+        })?;
+        cfg.validate()?;
+        let agent = RdpgAgent::load(dir.join("agent"))?;
+        let replay: EpisodicReplay = read_bin(&dir.join("replay.bin"))?;
+        let st: LoopState = read_bin(&dir.join("loop.bin"))?;
+        let n = cfg.num_envs;
+        if st.open.len() != n || st.noise.len() != n || st.episode_index.len() != n {
+            return Err(AgentError::Checkpoint(
+                "loop state does not match num_envs".into(),
+            ));
+        }
+        let probe = rdpg_envs::make_with(&cfg.env, &cfg.env_options()).map_err(env_err)?;
+        let (low, high) = (
+            probe.action_space().low.clone(),
+            probe.action_space().high.clone(),
+        );
+        let mut venv =
+            VecEnv::make(&cfg.env, &cfg.env_options(), n, cfg.workers).map_err(env_err)?;
+        venv.reset_scheduled(cfg.seed, &st.episode_index)
+            .map_err(env_err)?;
+        let mut obs = Vec::with_capacity(n);
+        for (i, ep) in st.open.iter().enumerate() {
+            let o = venv.restore(i, ep.env_actions.clone()).map_err(env_err)?;
+            let dim = o.len();
+            if ep.obs.len() < dim || ep.obs[ep.obs.len() - dim..] != o[..] {
+                return Err(AgentError::Checkpoint(format!(
+                    "env {i}: rebuilt episode differs from the checkpoint (different environment build?)"
+                )));
+            }
+            obs.push(o);
+        }
+        let mut act_state = agent.initial_state(n);
+        let sd = agent.state_dim();
+        if st.actor_state.len() != n * sd {
+            return Err(AgentError::Checkpoint(
+                "actor state size does not match".into(),
+            ));
+        }
+        for i in 0..n {
+            if sd > 0 {
+                act_state.set_env_state(i, &st.actor_state[i * sd..(i + 1) * sd]);
+            }
+        }
+        Ok(Self {
+            cfg,
+            agent,
+            replay,
+            venv,
+            obs,
+            act_state,
+            low,
+            high,
+            st,
+        })
+    }
+}
+
+fn make_noise(cfg: &ExplorationConfig, dim: usize) -> ActionNoise {
+    match *cfg {
+        ExplorationConfig::None => ActionNoise::None { dim },
+        ExplorationConfig::Ou { theta, sigma } => ActionNoise::Ou(OrnsteinUhlenbeck::new(
+            dim,
+            OuConfig {
+                theta,
+                sigma,
+                ..OuConfig::default()
+            },
+        )),
+        ExplorationConfig::Gaussian { sigma } => ActionNoise::Gaussian(Gaussian::new(dim, sigma)),
+    }
+}
+
+fn env_err(e: rdpg_core::EnvError) -> AgentError {
+    AgentError::Env(e)
+}
+
+fn write_bin<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let file = std::fs::File::create(path)?;
+    bincode::serialize_into(std::io::BufWriter::new(file), value)
+        .map_err(|e| AgentError::Checkpoint(format!("{}: {e}", path.display())))
+}
+
+fn read_bin<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
+    let file = std::fs::File::open(path)
+        .map_err(|e| AgentError::Checkpoint(format!("{}: {e}", path.display())))?;
+    bincode::deserialize_from(std::io::BufReader::new(file)).map_err(|e| {
+        AgentError::Checkpoint(format!("{} is truncated or corrupt: {e}", path.display()))
+    })
+}
+
+/// The learner configuration of the memory task (PendulumNoVel-v1): a small MLP trunk, LSTM 64
+/// (or, with `ddpg`, the same network with the LSTM replaced by FC and `l = u = 1`, `s = 0`),
+/// target networks with τ = 0.005, batch 64, `l = u = 8`, `s = 16`.
+pub fn memory_task_config(ddpg: bool) -> RdpgConfig {
+    let cfg = RdpgConfig {
+        trunk: crate::Trunk::Mlp { hidden: vec![64] },
+        actor_hidden: 64,
+        critic_hidden: 64,
+        critic_action_fc: 32,
+        batch_size: 64,
+        opt_len: 8,
+        update_len: 8,
+        scan_len: 16,
+        tau: 0.005,
+        actor_uses_updated_critic: false,
+        scan_method: crate::ScanMethod::MaskedLoop,
+        device: crate::DeviceSpec::Cpu,
+        ..RdpgConfig::default()
+    };
+    if ddpg {
+        cfg.ddpg()
+    } else {
+        cfg
+    }
+}

@@ -1,0 +1,159 @@
+//! End-to-end tests of the training loop: resume identity, validation, corrupt checkpoints.
+
+use std::path::{Path, PathBuf};
+
+use rdpg_agents::train::{ExplorationConfig, Quiet, TrainConfig, Trainer};
+use rdpg_agents::{memory_task_config, AgentError, RdpgConfig};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("rdpg-train-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn small() -> (TrainConfig, RdpgConfig) {
+    let train = TrainConfig {
+        env: "PendulumNoVel-v1".into(),
+        total_steps: 700,
+        warmup_steps: 250,
+        updates_per_step: 0.25,
+        num_envs: 2,
+        workers: 2,
+        replay_capacity: 5_000,
+        exploration: ExplorationConfig::Ou {
+            theta: 0.15,
+            sigma: 0.3,
+        },
+        eval_every: 0,
+        eval_episodes: 1,
+        seed: 11,
+        ..TrainConfig::default()
+    };
+    let mut agent = memory_task_config(false);
+    agent.actor_hidden = 16;
+    agent.critic_hidden = 16;
+    agent.trunk = rdpg_agents::Trunk::Mlp { hidden: vec![16] };
+    agent.batch_size = 8;
+    agent.num_threads = Some(1);
+    (train, agent)
+}
+
+fn bytes(dir: &Path, file: &str) -> Vec<u8> {
+    std::fs::read(dir.join("agent").join(file)).unwrap()
+}
+
+#[test]
+fn half_save_load_half_equals_one_go() {
+    let (train, agent) = small();
+    let mut one = Trainer::new(train.clone(), agent.clone()).unwrap();
+    one.run(700, &mut Quiet).unwrap();
+    let d1 = tmp("one");
+    one.save(&d1).unwrap();
+
+    let mut first = Trainer::new(train, agent).unwrap();
+    // 333 is not a multiple of anything: episodes are in progress in both envs.
+    first.run(333, &mut Quiet).unwrap();
+    let mid = tmp("mid");
+    first.save(&mid).unwrap();
+    drop(first);
+    let mut second = Trainer::load(&mid).unwrap();
+    assert_eq!(second.steps(), 334);
+    second.run(700, &mut Quiet).unwrap();
+    let d2 = tmp("two");
+    second.save(&d2).unwrap();
+
+    assert!(
+        one.agent().updates() > 50,
+        "the run must actually learn: {} updates",
+        one.agent().updates()
+    );
+    assert_eq!(one.agent().updates(), second.agent().updates());
+    assert_eq!(
+        bytes(&d1, "weights.safetensors"),
+        bytes(&d2, "weights.safetensors"),
+        "weights differ"
+    );
+    assert_eq!(
+        bytes(&d1, "optim.safetensors"),
+        bytes(&d2, "optim.safetensors"),
+        "optimiser differs"
+    );
+    assert_eq!(
+        std::fs::read(d1.join("replay.bin")).unwrap(),
+        std::fs::read(d2.join("replay.bin")).unwrap()
+    );
+}
+
+#[test]
+fn corrupt_checkpoints_get_clear_errors() {
+    let (mut train, agent) = small();
+    train.total_steps = 300;
+    let mut t = Trainer::new(train, agent).unwrap();
+    t.run(300, &mut Quiet).unwrap();
+    let d = tmp("corrupt");
+    t.save(&d).unwrap();
+    let replay = d.join("replay.bin");
+    let full = std::fs::read(&replay).unwrap();
+    std::fs::write(&replay, &full[..full.len() / 2]).unwrap();
+    let err = Trainer::load(&d)
+        .err()
+        .expect("a truncated replay must not load")
+        .to_string();
+    assert!(
+        err.contains("replay.bin") && err.contains("truncated or corrupt"),
+        "{err}"
+    );
+    std::fs::remove_file(d.join("loop.bin")).unwrap();
+    std::fs::write(&replay, &full).unwrap();
+    let err = Trainer::load(&d).err().unwrap().to_string();
+    assert!(err.contains("loop.bin"), "{err}");
+    assert!(Trainer::load(&tmp("missing")).is_err());
+}
+
+#[test]
+fn invalid_train_configs_name_the_field() {
+    let (train, agent) = small();
+    let cases: Vec<(TrainConfig, &str)> = vec![
+        (
+            TrainConfig {
+                env: "Nope-v0".into(),
+                ..train.clone()
+            },
+            "train.env",
+        ),
+        (
+            TrainConfig {
+                num_envs: 0,
+                ..train.clone()
+            },
+            "train.num_envs",
+        ),
+        (
+            TrainConfig {
+                updates_per_step: f64::NAN,
+                ..train.clone()
+            },
+            "train.updates_per_step",
+        ),
+        (
+            TrainConfig {
+                exploration: ExplorationConfig::Gaussian { sigma: -1.0 },
+                ..train.clone()
+            },
+            "train.exploration",
+        ),
+    ];
+    for (cfg, field) in cases {
+        match Trainer::new(cfg, agent.clone()) {
+            Err(AgentError::Config { field: f, .. }) => assert_eq!(f, field),
+            Err(e) => panic!("{field}: unexpected error {e}"),
+            Ok(_) => panic!("{field}: accepted"),
+        }
+    }
+    // The agent's own validation runs too.
+    let bad_agent = RdpgConfig {
+        gamma: 1.5,
+        ..agent
+    };
+    assert!(Trainer::new(train, bad_agent).is_err());
+}
