@@ -10,6 +10,12 @@
 //! * **Feed-forward** variants (DDPG, paper Table I): the LSTM replaced by FC + ReLU of the same
 //!   width; their recurrent state is empty (zero-width) and passes through unchanged.
 //!
+//! The paper's text says the LSTM layer comes "with ReLU"; the LSTM output `h = o * tanh(c)` is
+//! fed to the head directly here (the project's notes on the authors' released code list
+//! "LSTM 256, linear + tanh"). Sequences use libtorch's fused LSTM kernel ([`Lstm::seq`]); single steps (acting, the
+//! per-step actor gradient, the states along the window) use `lstm_cell` ([`Lstm::cell`]),
+//! measured faster for one step and cheaper in backward.
+//!
 //! Shapes: `B` batch (windows or environments), `T` time steps, `D` observation size, `A` action
 //! size, `E` embedding size, `H` recurrent width. Recurrent states are `[1, B, H]` (libtorch's
 //! `[layers, batch, hidden]`). Sequences are batch-first.

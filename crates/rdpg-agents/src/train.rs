@@ -158,6 +158,14 @@ impl TrainConfig {
         }
     }
 
+    /// The vector env of the run and the action bounds of its environments.
+    fn make_envs(&self) -> Result<(VecEnv, Vec<f32>, Vec<f32>)> {
+        let probe = rdpg_envs::make_with(&self.env, &self.env_options())?;
+        let space = probe.action_space();
+        let venv = VecEnv::make(&self.env, &self.env_options(), self.num_envs, self.workers)?;
+        Ok((venv, space.low.clone(), space.high.clone()))
+    }
+
     fn env_options(&self) -> EnvOptions {
         EnvOptions {
             reward: self.reward,
@@ -261,18 +269,10 @@ impl Trainer {
     /// A fresh run.
     pub fn new(cfg: TrainConfig, agent_cfg: RdpgConfig) -> Result<Self> {
         cfg.validate()?;
-        let probe = rdpg_envs::make_with(&cfg.env, &cfg.env_options()).map_err(env_err)?;
-        let (obs_dim, act_dim) = (probe.observation_space().dim(), probe.action_space().dim());
-        let (low, high) = (
-            probe.action_space().low.clone(),
-            probe.action_space().high.clone(),
-        );
+        let (mut venv, low, high) = cfg.make_envs()?;
+        let (obs_dim, act_dim) = (venv.obs_dim(), venv.act_dim());
         let agent = RdpgAgent::new(agent_cfg, obs_dim, act_dim, cfg.seed)?;
-        let mut venv = VecEnv::make(&cfg.env, &cfg.env_options(), cfg.num_envs, cfg.workers)
-            .map_err(env_err)?;
-        let obs = venv
-            .reset_scheduled(cfg.seed, &vec![0; cfg.num_envs])
-            .map_err(env_err)?;
+        let obs = venv.reset_scheduled(cfg.seed, &vec![0; cfg.num_envs])?;
         let state_dim = if agent.config().burn_in_from_stored_state {
             agent.state_dim()
         } else {
@@ -388,7 +388,7 @@ impl Trainer {
                 .collect();
             let env_actions: Vec<Vec<f32>> =
                 actions.iter().map(|a| self.to_env_action(a)).collect();
-            let steps = self.venv.step(&env_actions).map_err(env_err)?;
+            let steps = self.venv.step(&env_actions)?;
             self.st.steps += n as u64;
             for (i, s) in steps.into_iter().enumerate() {
                 let ep = &mut self.st.open[i];
@@ -467,18 +467,16 @@ impl Trainer {
             reward: WalkerReward::Stock,
             ..self.cfg.env_options()
         };
-        let mut env = rdpg_envs::make_with(&self.cfg.env, &opts).map_err(env_err)?;
+        let mut env = rdpg_envs::make_with(&self.cfg.env, &opts)?;
         let mut returns = Vec::with_capacity(self.cfg.eval_episodes);
         let mut successes = 0;
         for k in 0..self.cfg.eval_episodes {
-            let (mut obs, _) = env
-                .reset(Some(self.cfg.eval_seed + k as u64))
-                .map_err(env_err)?;
+            let (mut obs, _) = env.reset(Some(self.cfg.eval_seed + k as u64))?;
             let mut state = self.agent.initial_state(1);
             let mut ret = 0.0;
             loop {
                 let a = self.agent.act(&obs, &mut state);
-                let s = env.step(&self.to_env_action(&a)).map_err(env_err)?;
+                let s = env.step(&self.to_env_action(&a))?;
                 ret += s.reward;
                 if s.done() {
                     successes += s.info.success as usize;
@@ -534,18 +532,11 @@ impl Trainer {
                 "loop state does not match num_envs".into(),
             ));
         }
-        let probe = rdpg_envs::make_with(&cfg.env, &cfg.env_options()).map_err(env_err)?;
-        let (low, high) = (
-            probe.action_space().low.clone(),
-            probe.action_space().high.clone(),
-        );
-        let mut venv =
-            VecEnv::make(&cfg.env, &cfg.env_options(), n, cfg.workers).map_err(env_err)?;
-        venv.reset_scheduled(cfg.seed, &st.episode_index)
-            .map_err(env_err)?;
+        let (mut venv, low, high) = cfg.make_envs()?;
+        venv.reset_scheduled(cfg.seed, &st.episode_index)?;
         let mut obs = Vec::with_capacity(n);
         for (i, ep) in st.open.iter().enumerate() {
-            let o = venv.restore(i, ep.env_actions.clone()).map_err(env_err)?;
+            let o = venv.restore(i, ep.env_actions.clone())?;
             let dim = o.len();
             if ep.obs.len() < dim || ep.obs[ep.obs.len() - dim..] != o[..] {
                 return Err(AgentError::Checkpoint(format!(
@@ -593,10 +584,6 @@ fn make_noise(cfg: &ExplorationConfig, dim: usize) -> ActionNoise {
         )),
         ExplorationConfig::Gaussian { sigma } => ActionNoise::Gaussian(Gaussian::new(dim, sigma)),
     }
-}
-
-fn env_err(e: rdpg_core::EnvError) -> AgentError {
-    AgentError::Env(e)
 }
 
 fn write_bin<T: Serialize>(path: &Path, value: &T) -> Result<()> {

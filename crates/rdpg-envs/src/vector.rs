@@ -304,8 +304,7 @@ fn send(w: &mut Worker, cmd: Cmd) -> Result<(), EnvError> {
 
 fn receive(w: &mut Worker) -> Reply {
     match &mut w.link {
-        Link::Remote { rx, .. } => rx
-            .recv()
+        Link::Remote { rx, .. } => recv_spin(rx)
             .unwrap_or_else(|_| Err(EnvError::Physics("vector env worker died".into()))),
         Link::Local { pending, .. } => pending.take().expect("a command was sent"),
     }
@@ -408,8 +407,31 @@ impl Shard {
     }
 }
 
+/// Receives from `rx`, spinning briefly before blocking: a step takes tens of microseconds, and
+/// waking a parked thread (a futex round trip, slow on virtual machines) would cost as much.
+fn recv_spin<T>(rx: &Receiver<T>) -> Result<T, std::sync::mpsc::RecvError> {
+    let start = std::time::Instant::now();
+    loop {
+        match rx.try_recv() {
+            Ok(v) => return Ok(v),
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                return Err(std::sync::mpsc::RecvError)
+            }
+            Err(std::sync::mpsc::TryRecvError::Empty) => {
+                if start.elapsed() > SPIN {
+                    return rx.recv();
+                }
+                std::hint::spin_loop();
+            }
+        }
+    }
+}
+
+/// How long a waiting thread spins before it blocks.
+const SPIN: std::time::Duration = std::time::Duration::from_micros(200);
+
 fn worker_loop(mut shard: Shard, rx: Receiver<Cmd>, tx: Sender<Reply>) {
-    while let Ok(cmd) = rx.recv() {
+    while let Ok(cmd) = recv_spin(&rx) {
         if tx.send(shard.handle(cmd)).is_err() {
             return;
         }
