@@ -9,6 +9,17 @@ fn rdpg() -> Command {
     Command::new(env!("CARGO_BIN_EXE_rdpg"))
 }
 
+/// Output of a successful run (panics with its stderr otherwise).
+fn ok(cmd: &mut Command) -> std::process::Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("rdpg-cli-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -38,7 +49,7 @@ fn rollout_reproduces_a_gymnasium_trace() {
         .collect();
     let file = tmp("actions.csv");
     std::fs::write(&file, text).unwrap();
-    let out = rdpg()
+    let out = ok(rdpg()
         .args([
             "rollout",
             "--env",
@@ -47,14 +58,7 @@ fn rollout_reproduces_a_gymnasium_trace() {
         ])
         .arg(ep["seed"].as_u64().unwrap().to_string())
         .arg("--actions")
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .arg(&file));
     let lines: Vec<Value> = String::from_utf8(out.stdout)
         .unwrap()
         .lines()
@@ -117,7 +121,7 @@ fn rollout_rejects_bad_input_with_a_message() {
 fn render_writes_a_gif_and_pngs() {
     let gif = tmp("walker.gif");
     let pngs = tmp("frames");
-    let out = rdpg()
+    let out = ok(rdpg()
         .args([
             "render",
             "--env",
@@ -132,14 +136,7 @@ fn render_writes_a_gif_and_pngs() {
         ])
         .arg(&gif)
         .arg("--png-dir")
-        .arg(&pngs)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .arg(&pngs));
     let bytes = std::fs::read(&gif).unwrap();
     assert_eq!(&bytes[..6], b"GIF89a");
     assert_eq!(
@@ -153,7 +150,7 @@ fn render_writes_a_gif_and_pngs() {
 #[test]
 fn bench_env_prints_one_json_line_ending_in_steps_per_sec() {
     for extra in [&[][..], &["--workers", "2"][..]] {
-        let out = rdpg()
+        let out = ok(rdpg()
             .args([
                 "bench",
                 "env",
@@ -162,14 +159,7 @@ fn bench_env_prints_one_json_line_ending_in_steps_per_sec() {
                 "--steps",
                 "400",
             ])
-            .args(extra)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+            .args(extra));
         let text = String::from_utf8(out.stdout).unwrap();
         let line = text.trim();
         assert_eq!(text.lines().count(), 1);
@@ -182,28 +172,20 @@ fn bench_env_prints_one_json_line_ending_in_steps_per_sec() {
 
 #[test]
 fn bench_update_prints_one_json_line_ending_in_updates_per_sec() {
-    let out = rdpg()
-        .args([
-            "bench",
-            "update",
-            "--iters",
-            "2",
-            "--batch",
-            "4",
-            "--scan",
-            "3",
-            "--opt",
-            "2",
-            "--threads",
-            "1",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = ok(rdpg().args([
+        "bench",
+        "update",
+        "--iters",
+        "2",
+        "--batch",
+        "4",
+        "--scan",
+        "3",
+        "--opt",
+        "2",
+        "--threads",
+        "1",
+    ]));
     let text = String::from_utf8(out.stdout).unwrap();
     let v: Value = serde_json::from_str(text.trim()).unwrap();
     assert!(v["updates_per_sec"].as_f64().unwrap() > 0.0);

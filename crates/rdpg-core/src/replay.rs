@@ -182,17 +182,7 @@ impl Episode {
         if n == 0 {
             return Err(ReplayError::EmptyEpisode);
         }
-        let dim = |what, expected: usize, got: usize| {
-            if expected == got {
-                Ok(())
-            } else {
-                Err(ReplayError::Dimension {
-                    what,
-                    expected,
-                    got,
-                })
-            }
-        };
+        let dim = check_dim;
         dim("episode obs", (n + 1) * config.obs_dim, self.obs.len())?;
         dim("episode actions", n * config.act_dim, self.actions.len())?;
         if !self.states.is_empty() {
@@ -479,17 +469,7 @@ impl EpisodicReplay {
         state: Option<&[f32]>,
     ) -> Result<(), ReplayError> {
         let cfg = self.store.config;
-        let dim = |what, expected: usize, got: usize| {
-            if expected == got {
-                Ok(())
-            } else {
-                Err(ReplayError::Dimension {
-                    what,
-                    expected,
-                    got,
-                })
-            }
-        };
+        let dim = check_dim;
         dim("obs", cfg.obs_dim, obs.len())?;
         dim("action", cfg.act_dim, action.len())?;
         dim("next_obs", cfg.obs_dim, next_obs.len())?;
@@ -739,6 +719,19 @@ impl EpisodicReplay {
                     .copy_from_slice(&ep.states[first * sd..(first + 1) * sd]);
             }
         }
+    }
+}
+
+/// `Ok` when a slice has the expected length, else a [`ReplayError::Dimension`] naming it.
+fn check_dim(what: &'static str, expected: usize, got: usize) -> Result<(), ReplayError> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(ReplayError::Dimension {
+            what,
+            expected,
+            got,
+        })
     }
 }
 
