@@ -100,33 +100,19 @@ def stepwise(lstm, x, h0):
     return torch.stack(outs, 1), torch.stack(hs, 1), torch.stack(cs, 1)
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--scan", type=int, default=24)
-    ap.add_argument("--batch", type=int, default=64)
-    ap.add_argument("--opt", type=int, default=8)
-    ap.add_argument("--iters", type=int, default=30)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--old-critic", action="store_true")
-    ap.add_argument("--device", default="cpu")
-    a = ap.parse_args()
-    torch.set_num_threads(a.threads)
-    torch.manual_seed(0)
-    dev = torch.device(a.device)
-    n, s, l = a.batch, a.scan, a.opt
-    gamma = 0.99
+def sync(dev):
+    if dev.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def build(n, s, l, dev, old_critic=False, gamma=0.99):
+    """Networks, optimisers and the update of full windows of s + l steps (batch of n).
+
+    Returns (actor, update, phases): update((obs [n,s+l+1,OBS], act [n,s+l,ACT], rew [n,s+l]),
+    timed) runs one update and returns the losses; phases accumulates per-phase seconds."""
     actor, critic = Actor().to(dev), Critic().to(dev)
     opt_a = torch.optim.Adam(actor.parameters(), lr=1e-3)
     opt_c = torch.optim.Adam(critic.parameters(), lr=1e-3, weight_decay=1e-5)
-
-    def batch():
-        obs = torch.randn(n, s + l + 1, OBS, device=dev)
-        obs[..., OBS - LIDAR:] = torch.rand(n, s + l + 1, LIDAR, device=dev)
-        act = torch.rand(n, s + l, ACT, device=dev) * 2 - 1
-        rew = torch.randn(n, s + l, device=dev) * 0.1
-        return obs, act, rew
-
-    batches = [batch() for _ in range(4)]
     # Full windows: tail at slot l, weights uniform over l steps, not terminated.
     onehot = torch.zeros(n, l + 1, device=dev)
     onehot[:, l] = 1
@@ -138,10 +124,6 @@ def main():
     actor_w = torch.full((n, l), 1.0 / l, device=dev)
     phases = dict(scan=0.0, window_nograd=0.0, critic_step=0.0, critic_rescan=0.0, actor_step=0.0)
 
-    def sync():
-        if dev.type == "cuda":
-            torch.cuda.synchronize()
-
     def update(b, timed):
         obs, act, rew = b
         t0 = time.perf_counter()
@@ -149,7 +131,7 @@ def main():
 
         def tick(name):
             if timed:
-                sync()
+                sync(dev)
                 now = time.perf_counter()
                 phases[name] += now - lap[0]
                 lap[0] = now
@@ -181,13 +163,13 @@ def main():
         closs = (critic_w * (y - q_sa) ** 2).sum() / n
         opt_c.zero_grad()
         closs.backward()
-        if a.old_critic:
+        if old_critic:
             with torch.no_grad():
                 _, hcb, ccb = stepwise(critic.lstm, critic.inp(obs_win[:, :l], act_win), hc)
         else:
             opt_c.step()
         tick("critic_step")
-        if not a.old_critic:
+        if not old_critic:
             with torch.no_grad():
                 hc2 = critic.lstm(critic.inp(obs_scan, act_scan), zc)[1] if s > 0 else zc
                 _, hcb, ccb = stepwise(critic.lstm, critic.inp(obs_win[:, :l], act_win), hc2)
@@ -205,19 +187,47 @@ def main():
         aloss.backward()
         for p_ in critic.parameters():
             p_.requires_grad_(True)
-        if a.old_critic:
+        if old_critic:
             opt_c.step()
         opt_a.step()
         tick("actor_step")
         return closs.item(), aloss.item()
 
+    return actor, update, phases
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scan", type=int, default=24)
+    ap.add_argument("--batch", type=int, default=64)
+    ap.add_argument("--opt", type=int, default=8)
+    ap.add_argument("--iters", type=int, default=30)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--old-critic", action="store_true")
+    ap.add_argument("--device", default="cpu")
+    a = ap.parse_args()
+    torch.set_num_threads(a.threads)
+    torch.manual_seed(0)
+    dev = torch.device(a.device)
+    n, s, l = a.batch, a.scan, a.opt
+    _, update, phases = build(n, s, l, dev, a.old_critic)
+
+    def batch():
+        obs = torch.randn(n, s + l + 1, OBS, device=dev)
+        obs[..., OBS - LIDAR:] = torch.rand(n, s + l + 1, LIDAR, device=dev)
+        act = torch.rand(n, s + l, ACT, device=dev) * 2 - 1
+        rew = torch.randn(n, s + l, device=dev) * 0.1
+        return obs, act, rew
+
+    batches = [batch() for _ in range(4)]
+
     for i in range(3):
         update(batches[i % 4], False)
-    sync()
+    sync(dev)
     t0 = time.perf_counter()
     for i in range(a.iters):
         update(batches[i % 4], True)
-    sync()
+    sync(dev)
     secs = time.perf_counter() - t0
     print(
         json.dumps(

@@ -646,6 +646,9 @@ impl RdpgAgent {
         if let Err(e) = self.check_batch(batch) {
             panic!("RdpgAgent::update: {e}");
         }
+        if self.cfg.flush_denormal {
+            crate::set_flush_denormal(true);
+        }
         let mut clock = Clock::new(self.profile.is_some());
         let p = self.prepare(batch);
         clock.lap(|t| &mut t.prepare);

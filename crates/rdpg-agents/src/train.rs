@@ -13,7 +13,10 @@
 
 use std::path::Path;
 
-use rdpg_core::noise::{ActionNoise, Gaussian, OrnsteinUhlenbeck, OuConfig};
+use rdpg_core::noise::{
+    action_distance, ActionNoise, AdaptiveParamNoise, Gaussian, OrnsteinUhlenbeck, OuConfig,
+    ParamNoiseConfig,
+};
 use rdpg_core::replay::{Episode, EpisodicReplay, ReplayConfig};
 use rdpg_core::rng::NpRng;
 use rdpg_envs::{EnvOptions, VecEnv, WalkerReward};
@@ -50,6 +53,40 @@ impl Default for ExplorationConfig {
     }
 }
 
+/// Adaptive parameter-space noise on the actor (paper Sec. II-B and Algorithm 1's `Noise()` /
+/// `Denoise()`; Plappert et al. 2018), on top of the action noise.
+///
+/// Every `every_steps` environment steps after the warm-up, the trainer measures how far the
+/// perturbed actor's actions are from the trained actor's on observations sampled from the
+/// replay (zero recurrent state), adapts σ towards `desired_action_stddev`, and perturbs a fresh
+/// copy of the trained actor with `N(0, σ²)` on every parameter. The environments act with that
+/// copy; updates always train the unperturbed actor (the "denoise before Update()" of
+/// Algorithm 1), and evaluations use it too.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParamNoiseSpec {
+    /// Initial σ of the parameter perturbation.
+    pub initial_stddev: f64,
+    /// Target RMS distance between perturbed and unperturbed actions (in `[-1, 1]` units).
+    pub desired_action_stddev: f64,
+    /// Multiplicative step of σ's adaptation (`> 1`).
+    pub adoption_coefficient: f64,
+    /// Environment steps (over all environments) between perturbations.
+    pub every_steps: u64,
+}
+
+impl Default for ParamNoiseSpec {
+    fn default() -> Self {
+        let c = ParamNoiseConfig::default();
+        Self {
+            initial_stddev: c.initial_stddev,
+            desired_action_stddev: c.desired_action_stddev,
+            adoption_coefficient: c.adoption_coefficient,
+            every_steps: 1000,
+        }
+    }
+}
+
 /// Everything about a training run except the learner's own hyper-parameters.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -73,8 +110,10 @@ pub struct TrainConfig {
     pub workers: usize,
     /// Replay capacity in transitions (whole episodes are evicted oldest first).
     pub replay_capacity: usize,
-    /// Exploration noise.
+    /// Exploration noise on the actions.
     pub exploration: ExplorationConfig,
+    /// Parameter-space noise on the actor, in addition to `exploration`; none when absent.
+    pub param_noise: Option<ParamNoiseSpec>,
     /// Evaluate every this many environment steps (0: only at the end).
     pub eval_every: u64,
     /// Deterministic evaluation episodes.
@@ -98,6 +137,7 @@ impl Default for TrainConfig {
             workers: 1,
             replay_capacity: 100_000,
             exploration: ExplorationConfig::default(),
+            param_noise: None,
             eval_every: 5_000,
             eval_episodes: 10,
             eval_seed: 1_000_000,
@@ -140,6 +180,24 @@ impl TrainConfig {
         }
         if self.eval_episodes == 0 {
             return bad("train.eval_episodes", "must be at least 1".into());
+        }
+        if let Some(p) = &self.param_noise {
+            let ok = p.initial_stddev.is_finite()
+                && p.initial_stddev > 0.0
+                && p.desired_action_stddev.is_finite()
+                && p.desired_action_stddev > 0.0
+                && p.adoption_coefficient.is_finite()
+                && p.adoption_coefficient > 1.0
+                && p.every_steps > 0;
+            if !ok {
+                return bad(
+                    "train.param_noise",
+                    format!(
+                        "needs initial_stddev > 0, desired_action_stddev > 0, \
+                         adoption_coefficient > 1 and every_steps > 0 (got {p:?})"
+                    ),
+                );
+            }
         }
         match self.exploration {
             ExplorationConfig::Ou { theta, sigma }
@@ -250,6 +308,16 @@ struct LoopState {
     episode_index: Vec<u64>,
     actor_state: Vec<f32>,
     next_eval: u64,
+    param_noise: Option<ParamNoiseState>,
+}
+
+/// The parameter noise of a run: σ, the perturbed parameters the envs act with (empty before
+/// the first perturbation) and when to perturb next.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ParamNoiseState {
+    noise: AdaptiveParamNoise,
+    acting: Vec<f32>,
+    next_perturb: u64,
 }
 
 /// Off-policy training of an [`RdpgAgent`] (recurrent RDPG or feed-forward DDPG).
@@ -309,6 +377,15 @@ impl Trainer {
             } else {
                 u64::MAX
             },
+            param_noise: cfg.param_noise.map(|p| ParamNoiseState {
+                noise: AdaptiveParamNoise::new(ParamNoiseConfig {
+                    initial_stddev: p.initial_stddev,
+                    desired_action_stddev: p.desired_action_stddev,
+                    adoption_coefficient: p.adoption_coefficient,
+                }),
+                acting: Vec::new(),
+                next_perturb: 0,
+            }),
         };
         Ok(Self {
             cfg,
@@ -326,6 +403,11 @@ impl Trainer {
     /// The agent being trained.
     pub fn agent(&self) -> &RdpgAgent {
         &self.agent
+    }
+
+    /// The agent being trained, mutably (e.g. to switch on [`RdpgAgent::set_profiling`]).
+    pub fn agent_mut(&mut self) -> &mut RdpgAgent {
+        &mut self.agent
     }
 
     /// The run's configuration.
@@ -367,9 +449,12 @@ impl Trainer {
             } else {
                 vec![Vec::new(); n]
             };
+            let warm = self.st.steps < self.cfg.warmup_steps;
+            if !warm {
+                self.perturb_actor_if_due()?;
+            }
             let flat: Vec<f32> = self.obs.concat();
             let mu = self.agent.act(&flat, &mut self.act_state);
-            let warm = self.st.steps < self.cfg.warmup_steps;
             let actions: Vec<Vec<f32>> = (0..n)
                 .map(|i| {
                     if warm {
@@ -460,6 +545,42 @@ impl Trainer {
         Ok(self.st.steps)
     }
 
+    /// Algorithm 1's `Noise()`: when due, adapts σ to the distance the current perturbation
+    /// makes and acts from now on with a freshly perturbed copy of the trained actor.
+    fn perturb_actor_if_due(&mut self) -> Result<()> {
+        let Some(pn) = self.st.param_noise.as_mut() else {
+            return Ok(());
+        };
+        if self.st.steps < pn.next_perturb {
+            return Ok(());
+        }
+        if !pn.acting.is_empty() {
+            if let Some(b) = self.replay.sample(&mut self.st.rng, 64, 0, 1) {
+                // obs [n, 2, obs_dim]: the first step of each window.
+                let d = b.obs_dim;
+                let obs: Vec<f32> = (0..b.n)
+                    .flat_map(|i| b.obs[i * 2 * d..i * 2 * d + d].iter().copied())
+                    .collect();
+                let perturbed = self.agent.act(&obs, &mut self.agent.initial_state(b.n));
+                let clean = self
+                    .agent
+                    .act_unperturbed(&obs, &mut self.agent.initial_state(b.n));
+                pn.noise.adapt(action_distance(&perturbed, &clean));
+            }
+        }
+        let mut params = self.agent.actor_params();
+        pn.noise.perturb(&mut params, &mut self.st.rng);
+        self.agent.set_acting_params(Some(&params))?;
+        pn.acting = params;
+        pn.next_perturb = self.st.steps + self.cfg.param_noise.map_or(1, |p| p.every_steps);
+        Ok(())
+    }
+
+    /// σ of the parameter noise (`None` without parameter noise).
+    pub fn param_noise_stddev(&self) -> Option<f64> {
+        self.st.param_noise.as_ref().map(|p| p.noise.sigma)
+    }
+
     /// Deterministic evaluation (no noise) on the held-out seeds `eval_seed..`, on the stock
     /// reward, with a fresh recurrent state per episode.
     pub fn evaluate(&mut self) -> Result<EvalRecord> {
@@ -475,7 +596,7 @@ impl Trainer {
             let mut state = self.agent.initial_state(1);
             let mut ret = 0.0;
             loop {
-                let a = self.agent.act(&obs, &mut state);
+                let a = self.agent.act_unperturbed(&obs, &mut state);
                 let s = env.step(&self.to_env_action(&a))?;
                 ret += s.reward;
                 if s.done() {
@@ -544,6 +665,17 @@ impl Trainer {
                 )));
             }
             obs.push(o);
+        }
+        let mut agent = agent;
+        if let Some(pn) = st.param_noise.as_ref().filter(|p| !p.acting.is_empty()) {
+            agent
+                .set_acting_params(Some(&pn.acting))
+                .map_err(|e| AgentError::Checkpoint(format!("parameter noise: {e}")))?;
+        }
+        if st.param_noise.is_some() != cfg.param_noise.is_some() {
+            return Err(AgentError::Checkpoint(
+                "parameter noise state does not match the config".into(),
+            ));
         }
         let mut act_state = agent.initial_state(n);
         let sd = agent.state_dim();

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use rdpg_agents::train::{ExplorationConfig, Quiet, TrainConfig, Trainer};
+use rdpg_agents::train::{ExplorationConfig, ParamNoiseSpec, Quiet, TrainConfig, Trainer};
 use rdpg_agents::{memory_task_config, AgentError, RdpgConfig};
 
 fn tmp(name: &str) -> PathBuf {
@@ -45,6 +45,24 @@ fn bytes(dir: &Path, file: &str) -> Vec<u8> {
 #[test]
 fn half_save_load_half_equals_one_go() {
     let (train, agent) = small();
+    resume_is_identical(train, agent, "plain");
+}
+
+#[test]
+fn half_save_load_half_equals_one_go_with_parameter_noise() {
+    let (mut train, agent) = small();
+    train.param_noise = Some(ParamNoiseSpec {
+        every_steps: 60,
+        ..ParamNoiseSpec::default()
+    });
+    let sigma = resume_is_identical(train, agent, "param");
+    assert!(sigma.is_some_and(|s| s != ParamNoiseSpec::default().initial_stddev));
+}
+
+/// Runs 700 steps in one go and 333 + save + load + the rest; asserts identical weights,
+/// optimiser and replay, and returns the parameter-noise σ reached.
+fn resume_is_identical(train: TrainConfig, agent: RdpgConfig, tag: &str) -> Option<f64> {
+    let tmp = |name: &str| tmp(&format!("{tag}-{name}"));
     let mut one = Trainer::new(train.clone(), agent.clone()).unwrap();
     one.run(700, &mut Quiet).unwrap();
     let d1 = tmp("one");
@@ -82,6 +100,8 @@ fn half_save_load_half_equals_one_go() {
         std::fs::read(d1.join("replay.bin")).unwrap(),
         std::fs::read(d2.join("replay.bin")).unwrap()
     );
+    assert_eq!(one.param_noise_stddev(), second.param_noise_stddev());
+    one.param_noise_stddev()
 }
 
 #[test]
@@ -141,6 +161,16 @@ fn invalid_train_configs_name_the_field() {
                 ..train.clone()
             },
             "train.exploration",
+        ),
+        (
+            TrainConfig {
+                param_noise: Some(ParamNoiseSpec {
+                    adoption_coefficient: 0.9,
+                    ..ParamNoiseSpec::default()
+                }),
+                ..train.clone()
+            },
+            "train.param_noise",
         ),
     ];
     for (cfg, field) in cases {

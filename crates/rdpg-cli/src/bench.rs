@@ -15,6 +15,124 @@ pub enum BenchCommand {
     Env(EnvBenchArgs),
     /// Time RDPG updates on synthetic BipedalWalker-shaped batches (the paper's networks).
     Update(UpdateBenchArgs),
+    /// Whole-training throughput: acting, stepping, storing and updating with the paper's
+    /// networks (the counterpart of `scripts/pytorch_train_bench.py`).
+    Train(TrainBenchArgs),
+}
+
+/// Arguments of `rdpg bench train`.
+#[derive(Debug, Args)]
+pub struct TrainBenchArgs {
+    /// Environment id.
+    #[arg(long, default_value = "BipedalWalker-v3")]
+    env: String,
+    /// Environment steps (over all environments), warm-up included.
+    #[arg(long, default_value_t = 3000)]
+    steps: u64,
+    /// Steps of uniform random actions before the first update.
+    #[arg(long, default_value_t = 500)]
+    warmup: u64,
+    /// Updates per environment step after the warm-up.
+    #[arg(long, default_value_t = 0.05)]
+    ups: f64,
+    /// Environments acting in parallel (batched inference).
+    #[arg(long, default_value_t = 1)]
+    envs: usize,
+    /// Worker threads stepping them.
+    #[arg(long, default_value_t = 1)]
+    workers: usize,
+    /// CPU threads for libtorch.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Scan length s.
+    #[arg(long, default_value_t = 24)]
+    scan: usize,
+    /// Windows per batch.
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    /// Optimisation length l (= update length u).
+    #[arg(long, default_value_t = 8)]
+    opt: usize,
+    /// Seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+#[derive(Serialize)]
+struct TrainBenchLine<'a> {
+    bench: &'static str,
+    env: &'a str,
+    steps: u64,
+    warmup: u64,
+    ups: f64,
+    envs: usize,
+    workers: usize,
+    threads: usize,
+    batch: usize,
+    scan: usize,
+    opt: usize,
+    updates: u64,
+    seconds: f64,
+    update_seconds: f64,
+    steps_per_sec: f64,
+}
+
+fn bench_train(a: &TrainBenchArgs) -> Result<()> {
+    use rdpg_agents::train::{ExplorationConfig, Quiet, TrainConfig, Trainer};
+    use rdpg_agents::{DeviceSpec, RdpgConfig};
+    let train = TrainConfig {
+        env: a.env.clone(),
+        total_steps: a.steps,
+        warmup_steps: a.warmup,
+        updates_per_step: a.ups,
+        num_envs: a.envs,
+        workers: a.workers,
+        replay_capacity: 1_000_000,
+        exploration: ExplorationConfig::default(),
+        eval_every: 0,
+        seed: a.seed,
+        ..TrainConfig::default()
+    };
+    let agent = RdpgConfig {
+        scan_len: a.scan,
+        batch_size: a.batch,
+        opt_len: a.opt,
+        update_len: a.opt,
+        device: DeviceSpec::Cpu,
+        num_threads: Some(a.threads),
+        ..RdpgConfig::default()
+    };
+    let mut trainer = Trainer::new(train, agent)?;
+    trainer.agent_mut().set_profiling(true);
+    let start = Instant::now();
+    let steps = trainer.run(a.steps, &mut Quiet)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let p = trainer.agent().profile().unwrap_or_default();
+    let line = TrainBenchLine {
+        bench: "train",
+        env: &a.env,
+        steps,
+        warmup: a.warmup,
+        ups: a.ups,
+        envs: a.envs,
+        workers: a.workers,
+        threads: a.threads,
+        batch: a.batch,
+        scan: a.scan,
+        opt: a.opt,
+        updates: trainer.agent().updates(),
+        seconds,
+        update_seconds: p.prepare
+            + p.scan
+            + p.window_nograd
+            + p.critic_step
+            + p.critic_rescan
+            + p.actor_step
+            + p.other,
+        steps_per_sec: steps as f64 / seconds,
+    };
+    println!("{}", serde_json::to_string(&line)?);
+    Ok(())
 }
 
 /// Arguments of `rdpg bench update`.
@@ -142,6 +260,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Env(a) => bench_env(a),
         BenchCommand::Update(a) => bench_update(a),
+        BenchCommand::Train(a) => bench_train(a),
     }
 }
 

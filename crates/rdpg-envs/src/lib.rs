@@ -9,12 +9,14 @@
 //! - [`make`]: builds a registered environment by id, with its time limit.
 
 pub mod bipedal;
+pub mod cue;
 pub mod pendulum;
 pub mod registry;
 pub mod vector;
 pub mod wrappers;
 
 pub use bipedal::{BipedalWalker, WalkerConfig, WalkerReward};
+pub use cue::CueMemory;
 pub use pendulum::Pendulum;
 pub use registry::{make, make_with, EnvOptions, ENV_IDS};
 pub use vector::VecEnv;

@@ -2,15 +2,16 @@
 
 use crate::bipedal::{BipedalWalker, WalkerConfig, WalkerReward};
 use crate::wrappers::{ObsMask, TimeLimit};
-use crate::{Pendulum, Renderable};
+use crate::{CueMemory, Pendulum, Renderable};
 use rdpg_core::{Env, EnvError};
 
 /// Ids [`make`] knows.
-pub const ENV_IDS: [&str; 4] = [
+pub const ENV_IDS: [&str; 5] = [
     "BipedalWalker-v3",
     "BipedalWalkerHardcore-v3",
     "Pendulum-v1",
     "PendulumNoVel-v1",
+    "CueMemory-v0",
 ];
 
 /// An environment that can also be drawn: what [`make`] returns.
@@ -35,7 +36,7 @@ pub struct EnvOptions {
 }
 
 /// Builds a registered environment with its time limit (1600 steps for BipedalWalker-v3, 2000
-/// for the hardcore version, 200 for the pendulums).
+/// for the hardcore version, 200 for the pendulums, 6 for `CueMemory-v0`).
 pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
     make_with(id, &EnvOptions::default())
 }
@@ -49,11 +50,15 @@ pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvErro
                 reward: opts.reward,
             })?)
         }
-        "Pendulum-v1" | "PendulumNoVel-v1" => {
+        "Pendulum-v1" | "PendulumNoVel-v1" | "CueMemory-v0" => {
             if opts.reward != WalkerReward::Stock {
                 return Err(EnvError::Config(format!("{id} has no reward option")));
             }
-            Box::new(Pendulum::new(id == "PendulumNoVel-v1"))
+            if id == "CueMemory-v0" {
+                Box::new(CueMemory::new(crate::cue::DEFAULT_DELAY))
+            } else {
+                Box::new(Pendulum::new(id == "PendulumNoVel-v1"))
+            }
         }
         _ => return Err(EnvError::UnknownId(id.to_string(), ENV_IDS.join(", "))),
     };
