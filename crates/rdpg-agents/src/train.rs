@@ -224,7 +224,8 @@ impl TrainConfig {
         Ok((venv, space.low.clone(), space.high.clone()))
     }
 
-    fn env_options(&self) -> EnvOptions {
+    /// The environment options of the run's training environments.
+    pub fn env_options(&self) -> EnvOptions {
         EnvOptions {
             reward: self.reward,
             hide_obs: self.hide_obs.clone(),
@@ -426,10 +427,7 @@ impl Trainer {
     }
 
     fn to_env_action(&self, a: &[f32]) -> Vec<f32> {
-        a.iter()
-            .zip(self.low.iter().zip(&self.high))
-            .map(|(&x, (&lo, &hi))| lo + (x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (hi - lo))
-            .collect()
+        to_env_action(a, &self.low, &self.high)
     }
 
     /// Runs until `until` environment steps (capped by the budget) or until the observer asks
@@ -582,41 +580,17 @@ impl Trainer {
     }
 
     /// Deterministic evaluation (no noise) on the held-out seeds `eval_seed..`, on the stock
-    /// reward, with a fresh recurrent state per episode.
+    /// reward, with a fresh recurrent state per episode (see [`evaluate_agent`]).
     pub fn evaluate(&mut self) -> Result<EvalRecord> {
-        let opts = EnvOptions {
-            reward: WalkerReward::Stock,
-            ..self.cfg.env_options()
-        };
-        let mut env = rdpg_envs::make_with(&self.cfg.env, &opts)?;
-        let mut returns = Vec::with_capacity(self.cfg.eval_episodes);
-        let mut successes = 0;
-        for k in 0..self.cfg.eval_episodes {
-            let (mut obs, _) = env.reset(Some(self.cfg.eval_seed + k as u64))?;
-            let mut state = self.agent.initial_state(1);
-            let mut ret = 0.0;
-            loop {
-                let a = self.agent.act_unperturbed(&obs, &mut state);
-                let s = env.step(&self.to_env_action(&a))?;
-                ret += s.reward;
-                if s.done() {
-                    successes += s.info.success as usize;
-                    break;
-                }
-                obs = s.obs;
-            }
-            returns.push(ret);
-        }
-        let m = returns.len() as f64;
-        let mean = returns.iter().sum::<f64>() / m;
-        let std = (returns.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / m).sqrt();
-        Ok(EvalRecord {
-            step: self.st.steps,
-            mean_return: mean,
-            std_return: std,
-            success_rate: successes as f64 / m,
-            returns,
-        })
+        let (episodes, seed) = (self.cfg.eval_episodes, self.cfg.eval_seed);
+        let mut rec = evaluate_agent(&mut self.agent, &self.cfg, episodes, seed)?;
+        rec.step = self.st.steps;
+        Ok(rec)
+    }
+
+    /// Raises (or lowers) the budget in environment steps, e.g. to continue a finished run.
+    pub fn set_total_steps(&mut self, total: u64) {
+        self.cfg.total_steps = total;
     }
 
     /// Writes a checkpoint to `dir`: the agent (networks, optimiser moments), the replay
@@ -701,6 +675,59 @@ impl Trainer {
             st,
         })
     }
+}
+
+/// Deterministic evaluation of `agent` (the unperturbed actor, no noise) on `episodes` episodes
+/// of `cfg`'s environment (its observation mask included) with seeds `seed, seed + 1, ...`,
+/// scored on the stock reward, each from a fresh recurrent state. `step` of the record is 0.
+pub fn evaluate_agent(
+    agent: &mut RdpgAgent,
+    cfg: &TrainConfig,
+    episodes: usize,
+    seed: u64,
+) -> Result<EvalRecord> {
+    let opts = EnvOptions {
+        reward: WalkerReward::Stock,
+        ..cfg.env_options()
+    };
+    let mut env = rdpg_envs::make_with(&cfg.env, &opts)?;
+    let space = env.action_space().clone();
+    let mut returns = Vec::with_capacity(episodes);
+    let mut successes = 0;
+    for k in 0..episodes {
+        let (mut obs, _) = env.reset(Some(seed + k as u64))?;
+        let mut state = agent.initial_state(1);
+        let mut ret = 0.0;
+        loop {
+            let a = agent.act_unperturbed(&obs, &mut state);
+            let s = env.step(&to_env_action(&a, &space.low, &space.high))?;
+            ret += s.reward;
+            if s.done() {
+                successes += s.info.success as usize;
+                break;
+            }
+            obs = s.obs;
+        }
+        returns.push(ret);
+    }
+    let m = returns.len().max(1) as f64;
+    let mean = returns.iter().sum::<f64>() / m;
+    let std = (returns.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / m).sqrt();
+    Ok(EvalRecord {
+        step: 0,
+        mean_return: mean,
+        std_return: std,
+        success_rate: successes as f64 / m,
+        returns,
+    })
+}
+
+/// Maps an action in the agent's `[-1, 1]` space to the env's bounds.
+fn to_env_action(a: &[f32], low: &[f32], high: &[f32]) -> Vec<f32> {
+    a.iter()
+        .zip(low.iter().zip(high))
+        .map(|(&x, (&lo, &hi))| lo + (x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (hi - lo))
+        .collect()
 }
 
 fn make_noise(cfg: &ExplorationConfig, dim: usize) -> ActionNoise {

@@ -1,12 +1,14 @@
 //! `rdpg`: the command-line front end of the rdpg framework.
 //!
-//! Subcommands: `rollout` (replay a fixed action sequence and print the trajectory as JSON
-//! lines), `render` (an episode to PNG frames and an animated GIF), `bench env` (environment
-//! throughput).
+//! Subcommands: `train` (an experiment file to a run directory), `eval` (a trained agent on
+//! held-out seeds), `rollout` (replay a fixed action sequence and print the trajectory as JSON
+//! lines), `render` (an episode to PNG frames and an animated GIF), `bench` (throughput).
 
 mod bench;
+mod experiment;
 mod render;
 mod rollout;
+mod train;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -21,6 +23,10 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Train an agent from an experiment file (TOML) into a run directory.
+    Train(train::TrainArgs),
+    /// Evaluate a run's agent deterministically on held-out seeds (stock reward).
+    Eval(train::EvalArgs),
     /// Replay a fixed action sequence and print one JSON object per step.
     Rollout(rollout::RolloutArgs),
     /// Render an episode to an animated GIF (and optionally PNG frames).
@@ -33,6 +39,8 @@ enum Command {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Command::Train(a) => train::run(&a),
+        Command::Eval(a) => train::eval(&a),
         Command::Rollout(a) => rollout::run(&a),
         Command::Render(a) => render::run(&a),
         Command::Bench(b) => bench::run(&b),

@@ -199,3 +199,186 @@ fn bench_update_prints_one_json_line_ending_in_updates_per_sec() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--device"));
 }
+
+fn configs_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs")
+}
+
+fn json_file(path: &std::path::Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// A short cue-memory run: the run directory's files, the metrics, `eval`, and a resume that
+/// ends with the same weights as one uninterrupted run.
+#[test]
+fn train_writes_a_run_directory_resumes_and_evals() {
+    let cfg = configs_dir().join("cue-rdpg.toml");
+    let sets = [
+        "train.warmup_steps=200",
+        "train.eval_every=200",
+        "train.eval_episodes=5",
+        "run.checkpoint_every=300",
+    ];
+    let train = |out: &std::path::Path, steps: u64| {
+        let mut c = rdpg();
+        c.args(["train", "--quiet", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(out)
+            .args(["--steps", &steps.to_string()]);
+        for s in sets {
+            c.args(["--set", s]);
+        }
+        ok(&mut c)
+    };
+    let one = tmp("run-one");
+    let _ = std::fs::remove_dir_all(&one);
+    train(&one, 700);
+    for f in [
+        "config.toml",
+        "metrics.jsonl",
+        "episodes.csv",
+        "evals.csv",
+        "summary.json",
+    ] {
+        assert!(one.join(f).exists(), "{f} missing");
+    }
+    assert!(one.join("checkpoints/best/agent").exists());
+    assert!(one.join("checkpoints/latest/replay.bin").exists());
+    let lines: Vec<Value> = std::fs::read_to_string(one.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let episodes = lines.iter().filter(|l| l["kind"] == "episode").count();
+    let evals: Vec<&Value> = lines.iter().filter(|l| l["kind"] == "eval").collect();
+    // CueMemory episodes are 6 steps long: 700 steps finish 116 of them.
+    assert_eq!(episodes, 116);
+    assert_eq!(
+        evals.len(),
+        4,
+        "evals at 200, 400, 600 and the final one at 700"
+    );
+    assert_eq!(evals[3]["step"], 700);
+    assert!(lines
+        .iter()
+        .any(|l| l["kind"] == "episode" && l["r100"].is_number()));
+    let summary = json_file(&one.join("summary.json"));
+    assert_eq!(summary["steps"], 700);
+    assert_eq!(summary["train_reward"], "stock");
+    assert!(summary["best_r100_train_reward"].is_number());
+    let csv = std::fs::read_to_string(one.join("episodes.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + episodes);
+    assert!(std::fs::read_to_string(one.join("config.toml"))
+        .unwrap()
+        .contains("warmup_steps = 200"));
+
+    // 350 steps, then resume to 700: identical weights and metrics rows.
+    let two = tmp("run-two");
+    let _ = std::fs::remove_dir_all(&two);
+    train(&two, 350);
+    ok(rdpg()
+        .args(["train", "--quiet", "--steps", "700", "--resume"])
+        .arg(&two));
+    let weights = |d: &PathBuf| {
+        std::fs::read(d.join("checkpoints/latest/agent/weights.safetensors")).unwrap()
+    };
+    assert_eq!(weights(&one), weights(&two), "resumed run differs");
+    let rows = |d: &PathBuf| -> Vec<String> {
+        std::fs::read_to_string(d.join("episodes.csv"))
+            .unwrap()
+            .lines()
+            .map(|l| l.rsplit_once(',').unwrap().0.to_string()) // drop the wall time
+            .collect()
+    };
+    assert_eq!(rows(&one), rows(&two));
+
+    // A run directory is never overwritten.
+    let out = rdpg()
+        .args(["train", "--quiet", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&one)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--resume"));
+
+    let out = ok(rdpg().args(["eval", "--episodes", "3", "--run"]).arg(&one));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(line["episodes"], 3);
+    assert_eq!(line["returns"].as_array().unwrap().len(), 3);
+    assert!(line["metric"].as_str().unwrap().contains("stock reward"));
+}
+
+/// Unknown keys, bad values and bad overrides are rejected with the key's name.
+#[test]
+fn train_rejects_bad_configs_naming_the_key() {
+    let cfg = configs_dir().join("cue-rdpg.toml");
+    for (set, needle) in [
+        ("agent.scan_lenn=3", "scan_lenn"),
+        ("train.nope=1", "nope"),
+        ("agent.gamma=2.0", "gamma"),
+        ("train.env=Walker-v9", "train.env"),
+        ("agent.opt_len=0", "opt_len"),
+        ("algo=ppo2", "ppo2"),
+        (
+            "train.exploration={kind=\"ou\",theta=-1,sigma=0.1}",
+            "train.exploration",
+        ),
+    ] {
+        let out = rdpg()
+            .args(["train", "--quiet", "--config"])
+            .arg(&cfg)
+            .args(["--out"])
+            .arg(tmp("never"))
+            .args(["--set", set])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{set} accepted");
+        assert!(err.contains(needle), "{set}: {err}");
+        assert!(!err.contains("panicked"), "{set}: {err}");
+    }
+    assert!(!tmp("never").join("config.toml").exists());
+}
+
+/// Every experiment in `configs/` trains (300 steps, a few updates, one evaluation episode).
+#[test]
+fn every_config_trains() {
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(configs_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            names.push(path);
+        }
+    }
+    names.sort();
+    assert!(names.len() >= 8, "{names:?}");
+    for cfg in names {
+        let stem = cfg.file_stem().unwrap().to_string_lossy().into_owned();
+        let out_dir = tmp(&format!("cfg-{stem}"));
+        let _ = std::fs::remove_dir_all(&out_dir);
+        let out = ok(rdpg()
+            .args(["train", "--quiet", "--steps", "300", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&out_dir)
+            .args([
+                "--set",
+                "train.warmup_steps=250",
+                "--set",
+                "train.updates_per_step=0.1",
+                "--set",
+                "train.eval_every=0",
+                "--set",
+                "train.eval_episodes=1",
+            ]));
+        let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(summary["steps"], 300, "{stem}");
+        assert!(
+            summary["last_eval"]["mean_stock_return"].is_number(),
+            "{stem}"
+        );
+    }
+}

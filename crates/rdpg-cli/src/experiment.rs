@@ -1,0 +1,188 @@
+//! Experiment files: one TOML file per experiment, `--set key=value` overrides, validation.
+//!
+//! ```toml
+//! name = "hardcore-rdpg"          # free text, used in reports
+//! algo = "rdpg"                   # rdpg | ddpg
+//! [train]                         # rdpg_agents::train::TrainConfig
+//! env = "BipedalWalkerHardcore-v3"
+//! total_steps = 1_000_000
+//! [agent]                         # rdpg_agents::RdpgConfig
+//! scan_len = 120
+//! [run]                           # RunConfig: checkpoints
+//! checkpoint_every = 50_000
+//! ```
+//!
+//! Every section has defaults, unknown keys are rejected with their name, and the resolved
+//! experiment (defaults filled in) is what a run directory stores as `config.toml`.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use rdpg_agents::train::TrainConfig;
+use rdpg_agents::RdpgConfig;
+use serde::{Deserialize, Serialize};
+
+/// The learning algorithm of an experiment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Algo {
+    /// Recurrent deterministic policy gradient (`agent.recurrent = true`).
+    Rdpg,
+    /// DDPG: the same learner with feed-forward networks (`agent.recurrent = false`).
+    Ddpg,
+}
+
+/// Run-directory settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RunConfig {
+    /// Save the full training state to `checkpoints/latest` every this many env steps (0: only
+    /// at the end and on Ctrl-C).
+    pub checkpoint_every: u64,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self {
+            checkpoint_every: 50_000,
+        }
+    }
+}
+
+/// One experiment: what `rdpg train --config` reads.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Experiment {
+    /// Name used in reports (defaults to the config file's stem).
+    #[serde(default)]
+    pub name: String,
+    /// Learning algorithm.
+    pub algo: Algo,
+    /// The training loop: environment, budget, exploration, evaluation, seed.
+    #[serde(default)]
+    pub train: TrainConfig,
+    /// The learner's hyper-parameters.
+    #[serde(default)]
+    pub agent: RdpgConfig,
+    /// Checkpointing.
+    #[serde(default)]
+    pub run: RunConfig,
+}
+
+impl Experiment {
+    /// Reads `path`, applies `overrides` (`key.path=value`, the value in TOML syntax or a bare
+    /// string) and validates the result.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Self> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let mut value: toml::Table = toml::from_str(&text)
+            .with_context(|| format!("{} is not valid TOML", path.display()))?;
+        for o in overrides {
+            set_key(&mut value, o)?;
+        }
+        let mut exp: Experiment = value
+            .try_into()
+            .with_context(|| format!("invalid experiment {}", path.display()))?;
+        if exp.name.is_empty() {
+            exp.name = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+        }
+        exp.validate()?;
+        Ok(exp)
+    }
+
+    /// Checks the sections and their consistency; errors name the key.
+    pub fn validate(&self) -> Result<()> {
+        self.train.validate()?;
+        self.agent.validate()?;
+        match (self.algo, self.agent.recurrent) {
+            (Algo::Ddpg, true) => bail!("algo = \"ddpg\" needs agent.recurrent = false"),
+            (Algo::Rdpg, false) => bail!("algo = \"rdpg\" needs agent.recurrent = true"),
+            _ => Ok(()),
+        }
+    }
+
+    /// The resolved experiment as TOML (every default written out).
+    pub fn to_toml(&self) -> Result<String> {
+        Ok(toml::to_string_pretty(self)?)
+    }
+}
+
+/// Applies one `a.b.c=value` override to a TOML table, creating intermediate tables.
+fn set_key(root: &mut toml::Table, assignment: &str) -> Result<()> {
+    let Some((key, raw)) = assignment.split_once('=') else {
+        bail!("--set {assignment:?}: expected key=value");
+    };
+    let key = key.trim();
+    let path: Vec<&str> = key.split('.').collect();
+    if path.iter().any(|p| p.is_empty()) {
+        bail!("--set {assignment:?}: empty key component");
+    }
+    // Parse the value as TOML (numbers, booleans, arrays, inline tables, quoted strings);
+    // anything else is taken as a bare string.
+    let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.trim().to_string()));
+    let mut table = root;
+    for part in &path[..path.len() - 1] {
+        let entry = table
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        table = match entry {
+            toml::Value::Table(t) => t,
+            _ => bail!("--set {key}: {part} is not a table"),
+        };
+    }
+    table.insert(path[path.len() - 1].to_string(), value);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str, sets: &[&str]) -> Result<Experiment> {
+        let dir = std::env::temp_dir().join(format!("rdpg-exp-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(format!("e{}.toml", text.len() + sets.len()));
+        std::fs::write(&p, text).unwrap();
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        Experiment::load(&p, &sets)
+    }
+
+    #[test]
+    fn defaults_overrides_and_round_trip() {
+        let e = parse(
+            "algo = \"rdpg\"\n[train]\nenv = \"CueMemory-v0\"\n",
+            &[
+                "agent.scan_len=7",
+                "train.seed=3",
+                "name=x",
+                "train.exploration={kind=\"none\"}",
+            ],
+        )
+        .unwrap();
+        assert_eq!(e.agent.scan_len, 7);
+        assert_eq!(e.train.seed, 3);
+        assert_eq!(e.name, "x");
+        let back: Experiment = toml::from_str(&e.to_toml().unwrap()).unwrap();
+        assert_eq!(back, e);
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_named() {
+        let err = |text: &str, sets: &[&str]| format!("{:#}", parse(text, sets).unwrap_err());
+        let base = "algo = \"rdpg\"\n";
+        assert!(err(base, &["agent.scan_lenn=3"]).contains("scan_lenn"));
+        assert!(err(base, &["train.bogus=1"]).contains("bogus"));
+        assert!(err(base, &["agent.gamma=1.5"]).contains("gamma"));
+        assert!(err(base, &["train.env=Nope-v0"]).contains("train.env"));
+        assert!(err(base, &["agent.batch_size=-1"]).contains("batch_size"));
+        assert!(err(base, &["agent.recurrent=false"]).contains("recurrent"));
+        assert!(err("algo = \"sac\"\n", &[]).contains("sac"));
+        assert!(err(base, &["novalue"]).contains("key=value"));
+    }
+}
