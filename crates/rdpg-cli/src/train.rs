@@ -456,7 +456,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let mut log = RunLog::open(&dir, trainer.steps(), total, a.quiet, stop.clone())?;
     let latest = dir.join("checkpoints").join("latest");
     let best = dir.join("checkpoints").join("best");
-    let every = |k: u64, step: u64| if k == 0 { u64::MAX } else { (step / k + 1) * k };
+    // The next multiple of `k` after `step` (never when `k` is 0).
+    let every = |k: u64, step: u64| step.checked_div(k).map_or(u64::MAX, |q| (q + 1) * k);
     if !a.quiet {
         eprintln!(
             "training {} ({} on {}, {} reward) for {total} steps -> {}",
