@@ -34,6 +34,7 @@ pub mod adam;
 pub mod bench;
 pub mod config;
 pub mod error;
+pub mod inject;
 pub mod nets;
 pub mod rdpg;
 pub mod train;

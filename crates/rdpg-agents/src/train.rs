@@ -22,6 +22,7 @@ use rdpg_core::rng::NpRng;
 use rdpg_envs::{EnvOptions, VecEnv, WalkerReward};
 use serde::{Deserialize, Serialize};
 
+use crate::inject::{InjectionConfig, TeacherFile};
 use crate::{ActorState, AgentError, RdpgAgent, RdpgConfig, Result, UpdateStats};
 
 /// Exploration noise added to the deterministic policy's actions.
@@ -114,6 +115,8 @@ pub struct TrainConfig {
     pub exploration: ExplorationConfig,
     /// Parameter-space noise on the actor, in addition to `exploration`; none when absent.
     pub param_noise: Option<ParamNoiseSpec>,
+    /// Experience injection from teacher files (paper Sec. III-D); none when absent.
+    pub injection: Option<InjectionConfig>,
     /// Evaluate every this many environment steps (0: only at the end).
     pub eval_every: u64,
     /// Deterministic evaluation episodes.
@@ -138,6 +141,7 @@ impl Default for TrainConfig {
             replay_capacity: 100_000,
             exploration: ExplorationConfig::default(),
             param_noise: None,
+            injection: None,
             eval_every: 5_000,
             eval_episodes: 10,
             eval_seed: 1_000_000,
@@ -180,6 +184,9 @@ impl TrainConfig {
         }
         if self.eval_episodes == 0 {
             return bad("train.eval_episodes", "must be at least 1".into());
+        }
+        if let Some(inj) = &self.injection {
+            inj.validate()?;
         }
         if let Some(p) = &self.param_noise {
             let ok = p.initial_stddev.is_finite()
@@ -347,13 +354,37 @@ impl Trainer {
         } else {
             0
         };
-        let replay = EpisodicReplay::new(
-            ReplayConfig::new(cfg.replay_capacity, obs_dim, act_dim).with_state_dim(state_dim),
-        )
-        .map_err(|e| AgentError::Config {
+        let mut rcfg =
+            ReplayConfig::new(cfg.replay_capacity, obs_dim, act_dim).with_state_dim(state_dim);
+        if let Some(inj) = &cfg.injection {
+            rcfg = rcfg.with_max_injected_fraction(inj.max_fraction);
+        }
+        let mut replay = EpisodicReplay::new(rcfg).map_err(|e| AgentError::Config {
             field: "replay",
             reason: e.to_string(),
         })?;
+        for path in cfg.injection.iter().flat_map(|i| &i.teachers) {
+            let teacher = TeacherFile::load(path)?;
+            teacher.check_fits(&cfg, path)?;
+            if (teacher.obs_dim, teacher.act_dim) != (obs_dim, act_dim) {
+                return Err(AgentError::Config {
+                    field: "train.injection",
+                    reason: format!(
+                        "teacher {} has obs/act sizes {}/{}, the env {obs_dim}/{act_dim}",
+                        path.display(),
+                        teacher.obs_dim,
+                        teacher.act_dim
+                    ),
+                });
+            }
+            for mut ep in teacher.episodes {
+                ep.injected = true;
+                replay.add_episode(ep).map_err(|e| AgentError::Config {
+                    field: "train.injection",
+                    reason: format!("teacher {}: {e}", path.display()),
+                })?;
+            }
+        }
         let noise = (0..cfg.num_envs)
             .map(|_| make_noise(&cfg.exploration, act_dim))
             .collect();
@@ -527,7 +558,16 @@ impl Trainer {
                 let (b, s, l) = (c.batch_size, c.scan_len, c.opt_len);
                 while self.st.update_debt >= 1.0 {
                     self.st.update_debt -= 1.0;
-                    let Some(batch) = self.replay.sample(&mut self.st.rng, b, s, l) else {
+                    let rng = &mut self.st.rng;
+                    let sampled = match &self.cfg.injection {
+                        // A share of the windows from teacher episodes, annealed to 0.
+                        Some(inj) => {
+                            let share = inj.share(self.st.steps);
+                            self.replay.sample_mixed(rng, b, s, l, share)
+                        }
+                        None => self.replay.sample(rng, b, s, l),
+                    };
+                    let Some(batch) = sampled else {
                         break;
                     };
                     let stats = self.agent.update(&batch);

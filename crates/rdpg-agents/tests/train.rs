@@ -187,3 +187,55 @@ fn invalid_train_configs_name_the_field() {
     };
     assert!(Trainer::new(train, bad_agent).is_err());
 }
+
+/// Teacher files: recorded, loaded into the replay under the injected cap, sampled, checked
+/// against the run's environment, and rejected clearly when corrupt.
+#[test]
+fn experience_injection_loads_teachers_under_the_cap() {
+    use rdpg_agents::inject::{record, InjectionConfig, TeacherFile};
+    let (mut train, agent) = small();
+    let mut teacher_agent = rdpg_agents::RdpgAgent::new(agent.clone(), 2, 1, 5).unwrap();
+    let t = record(&mut teacher_agent, &train, 12, 77, 0.3, "test").unwrap();
+    assert_eq!(t.episodes.len(), 12);
+    assert!(t
+        .episodes
+        .iter()
+        .all(|e| e.len() == 200 && e.truncated && !e.terminated));
+    let path = tmp("teacher.bin");
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    t.save(&path).unwrap();
+    assert_eq!(TeacherFile::load(&path).unwrap(), t);
+
+    // Capacity 5000 with a 0.3 cap: at most 1500 injected transitions, i.e. 7 episodes of 200.
+    train.injection = Some(InjectionConfig {
+        teachers: vec![path.clone()],
+        initial_share: 0.5,
+        anneal_steps: 500,
+        max_fraction: 0.3,
+    });
+    let mut tr = Trainer::new(train.clone(), agent.clone()).unwrap();
+    assert_eq!(tr.replay().num_injected_episodes(), 7);
+    assert_eq!(tr.replay().injected_transitions(), 1400);
+    tr.run(700, &mut Quiet).unwrap();
+    assert!(tr.agent().updates() > 50);
+    assert!(tr.replay().injected_transitions() <= 1500);
+
+    // A teacher of another environment or reward is refused, naming the key.
+    let mut other = train.clone();
+    other.env = "Pendulum-v1".into();
+    match Trainer::new(other, agent.clone()) {
+        Err(AgentError::Config { field, reason }) => {
+            assert_eq!(field, "train.injection");
+            assert!(reason.contains("PendulumNoVel-v1"), "{reason}");
+        }
+        Err(e) => panic!("unexpected error {e}"),
+        Ok(_) => panic!("a teacher of another env was accepted"),
+    }
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    match Trainer::new(train, agent) {
+        Err(AgentError::Checkpoint(m)) => assert!(m.contains("truncated"), "{m}"),
+        Err(e) => panic!("unexpected error {e}"),
+        Ok(_) => panic!("a truncated teacher file was accepted"),
+    }
+}

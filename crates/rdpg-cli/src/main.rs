@@ -1,7 +1,7 @@
 //! `rdpg`: the command-line front end of the rdpg framework.
 //!
 //! Subcommands: `train` (an experiment file to a run directory), `eval` (a trained agent on
-//! held-out seeds), `rollout` (replay a fixed action sequence and print the trajectory as JSON
+//! held-out seeds), `record` (a teacher's episodes for experience injection), `rollout` (replay a fixed action sequence and print the trajectory as JSON
 //! lines), `render` (an episode to PNG frames and an animated GIF), `bench` (throughput).
 
 mod bench;
@@ -27,6 +27,8 @@ enum Command {
     Train(train::TrainArgs),
     /// Evaluate a run's agent deterministically on held-out seeds (stock reward).
     Eval(train::EvalArgs),
+    /// Record a trained agent's episodes as a teacher file for experience injection.
+    Record(train::RecordArgs),
     /// Replay a fixed action sequence and print one JSON object per step.
     Rollout(rollout::RolloutArgs),
     /// Render an episode to an animated GIF (and optionally PNG frames).
@@ -41,6 +43,7 @@ fn main() -> Result<()> {
     match cli.command {
         Command::Train(a) => train::run(&a),
         Command::Eval(a) => train::eval(&a),
+        Command::Record(a) => train::record(&a),
         Command::Rollout(a) => rollout::run(&a),
         Command::Render(a) => render::run(&a),
         Command::Bench(b) => bench::run(&b),

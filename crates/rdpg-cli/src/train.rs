@@ -554,6 +554,78 @@ pub struct EvalArgs {
     seed: Option<u64>,
 }
 
+/// Arguments of `rdpg record`.
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// The teacher: a run directory written by `rdpg train` (or its `checkpoints/best` or
+    /// `checkpoints/latest`).
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// Episodes to record.
+    #[arg(long, default_value_t = 20)]
+    episodes: usize,
+    /// Output file (bincode), listed in a student's `train.injection.teachers`.
+    #[arg(long)]
+    out: PathBuf,
+    /// First seed of the recorded episodes.
+    #[arg(long, default_value_t = 2_000_000)]
+    seed: u64,
+    /// Gaussian action noise while recording (0: the deterministic policy).
+    #[arg(long, default_value_t = 0.0)]
+    noise: f64,
+}
+
+/// `rdpg record`: a teacher's trajectories for experience injection.
+pub fn record(a: &RecordArgs) -> Result<()> {
+    if a.episodes == 0 {
+        bail!("--episodes must be at least 1");
+    }
+    if !(a.noise.is_finite() && a.noise >= 0.0) {
+        bail!("--noise must be a non-negative number");
+    }
+    // A run directory, or one of its checkpoints.
+    let (run, which) = match a.checkpoint.file_name().and_then(|n| n.to_str()) {
+        Some(w @ ("best" | "latest")) if !a.checkpoint.join("config.toml").exists() => {
+            let run = a
+                .checkpoint
+                .parent()
+                .and_then(Path::parent)
+                .context("--checkpoint: expected a run directory")?;
+            (run.to_path_buf(), w)
+        }
+        _ => (a.checkpoint.clone(), "best"),
+    };
+    let (exp, mut agent) = load_run_agent(&run, which)?;
+    let t = rdpg_agents::inject::record(
+        &mut agent,
+        &exp.train,
+        a.episodes,
+        a.seed,
+        a.noise,
+        &run.display().to_string(),
+    )?;
+    t.save(&a.out)?;
+    let steps: usize = t.episodes.iter().map(|e| e.len()).sum();
+    let mean: f64 = t
+        .episodes
+        .iter()
+        .map(|e| e.rewards.iter().map(|&r| f64::from(r)).sum::<f64>())
+        .sum::<f64>()
+        / t.episodes.len() as f64;
+    println!(
+        "{}",
+        serde_json::json!({
+            "out": a.out.display().to_string(),
+            "env": t.env,
+            "reward": format!("{:?}", t.reward).to_lowercase(),
+            "episodes": t.episodes.len(),
+            "steps": steps,
+            "mean_return": mean,
+        })
+    );
+    Ok(())
+}
+
 /// Loads the agent of a run directory (`best` or `latest`) and its experiment.
 pub fn load_run_agent(run: &Path, which: &str) -> Result<(Experiment, RdpgAgent)> {
     let exp = Experiment::load(&run.join("config.toml"), &[])

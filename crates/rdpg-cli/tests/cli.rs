@@ -353,14 +353,14 @@ fn every_config_trains() {
             names.push(path);
         }
     }
-    names.sort();
+    names.sort_by_key(|p| p.file_stem().unwrap().to_owned());
     assert!(names.len() >= 8, "{names:?}");
     for cfg in names {
         let stem = cfg.file_stem().unwrap().to_string_lossy().into_owned();
         let out_dir = tmp(&format!("cfg-{stem}"));
         let _ = std::fs::remove_dir_all(&out_dir);
-        let out = ok(rdpg()
-            .args(["train", "--quiet", "--steps", "300", "--config"])
+        let mut cmd = rdpg();
+        cmd.args(["train", "--quiet", "--steps", "300", "--config"])
             .arg(&cfg)
             .arg("--out")
             .arg(&out_dir)
@@ -373,7 +373,25 @@ fn every_config_trains() {
                 "train.eval_every=0",
                 "--set",
                 "train.eval_episodes=1",
-            ]));
+            ]);
+        if let Some(base) = stem.strip_suffix("-injection") {
+            // The teacher: a few episodes of the base experiment's run (trained just before,
+            // names sort base first).
+            let teacher = tmp(&format!("teacher-{stem}.bin"));
+            ok(rdpg()
+                .args(["record", "--episodes", "2", "--checkpoint"])
+                .arg(tmp(&format!("cfg-{base}")))
+                .arg("--out")
+                .arg(&teacher));
+            cmd.args([
+                "--set",
+                &format!(
+                    "train.injection.teachers=[{:?}]",
+                    teacher.display().to_string()
+                ),
+            ]);
+        }
+        let out = ok(&mut cmd);
         let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
         assert_eq!(summary["steps"], 300, "{stem}");
         assert!(
