@@ -12,8 +12,8 @@ use rdpg_core::replay::Episode;
 use rdpg_envs::{EnvOptions, WalkerReward};
 use serde::{Deserialize, Serialize};
 
-use crate::train::TrainConfig;
-use crate::{AgentError, RdpgAgent, Result};
+use crate::train::{to_env_action, DeterministicPolicy, TrainConfig};
+use crate::{AgentError, Result};
 
 const MAGIC: &str = "rdpg-teacher-v1";
 
@@ -160,11 +160,11 @@ impl TeacherFile {
     }
 }
 
-/// Runs `agent` (unperturbed, plus Gaussian action noise of `noise_sigma`, 0 for none) for
-/// `episodes` episodes of `cfg`'s environment with the training reward `cfg.reward`, seeds
+/// Runs `policy` (plus Gaussian action noise of `noise_sigma`, 0 for none) for `episodes`
+/// episodes of `cfg`'s environment with the training reward `cfg.reward`, seeds
 /// `seed, seed + 1, ...`, and returns them as a teacher file.
 pub fn record(
-    agent: &mut RdpgAgent,
+    policy: &mut dyn DeterministicPolicy,
     cfg: &TrainConfig,
     episodes: usize,
     seed: u64,
@@ -179,7 +179,7 @@ pub fn record(
     let mut out = Vec::with_capacity(episodes);
     for k in 0..episodes {
         let (mut obs, _) = env.reset(Some(seed + k as u64))?;
-        let mut state = agent.initial_state(1);
+        policy.begin_episode();
         let mut ep = Episode {
             obs: obs.clone(),
             actions: Vec::new(),
@@ -190,18 +190,13 @@ pub fn record(
             injected: true,
         };
         loop {
-            let mut a = agent.act_unperturbed(&obs, &mut state);
+            let mut a = policy.act(&obs);
             if noise_sigma > 0.0 {
                 for x in &mut a {
                     *x = (*x + (noise_sigma * rng.standard_normal()) as f32).clamp(-1.0, 1.0);
                 }
             }
-            let env_a: Vec<f32> = a
-                .iter()
-                .zip(space.low.iter().zip(&space.high))
-                .map(|(&x, (&lo, &hi))| lo + (x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (hi - lo))
-                .collect();
-            let s = env.step(&env_a)?;
+            let s = env.step(&to_env_action(&a, &space.low, &space.high))?;
             ep.actions.extend_from_slice(&a);
             ep.rewards.push(s.reward as f32);
             ep.obs.extend_from_slice(&s.obs);

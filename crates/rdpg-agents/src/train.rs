@@ -717,11 +717,44 @@ impl Trainer {
     }
 }
 
-/// Deterministic evaluation of `agent` (the unperturbed actor, no noise) on `episodes` episodes
-/// of `cfg`'s environment (its observation mask included) with seeds `seed, seed + 1, ...`,
-/// scored on the stock reward, each from a fresh recurrent state. `step` of the record is 0.
-pub fn evaluate_agent(
-    agent: &mut RdpgAgent,
+/// A trained policy acting deterministically on one environment (evaluation, recording,
+/// rendering), whatever the algorithm.
+pub trait DeterministicPolicy {
+    /// Starts a new episode (e.g. zeroes the recurrent state).
+    fn begin_episode(&mut self);
+    /// The action in `[-1, 1]^act_dim` for one observation.
+    fn act(&mut self, obs: &[f32]) -> Vec<f32>;
+}
+
+/// An [`RdpgAgent`] as a [`DeterministicPolicy`]: the unperturbed actor with its own recurrent
+/// state.
+pub struct RdpgPolicy<'a> {
+    agent: &'a mut RdpgAgent,
+    state: ActorState,
+}
+
+impl<'a> RdpgPolicy<'a> {
+    /// Wraps `agent`.
+    pub fn new(agent: &'a mut RdpgAgent) -> Self {
+        let state = agent.initial_state(1);
+        Self { agent, state }
+    }
+}
+
+impl DeterministicPolicy for RdpgPolicy<'_> {
+    fn begin_episode(&mut self) {
+        self.state = self.agent.initial_state(1);
+    }
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
+        self.agent.act_unperturbed(obs, &mut self.state)
+    }
+}
+
+/// Deterministic evaluation of `policy` on `episodes` episodes of `cfg`'s environment (its
+/// observation mask included) with seeds `seed, seed + 1, ...`, scored on the stock reward,
+/// each episode from a fresh state. `step` of the record is 0.
+pub fn evaluate_policy(
+    policy: &mut dyn DeterministicPolicy,
     cfg: &TrainConfig,
     episodes: usize,
     seed: u64,
@@ -736,10 +769,10 @@ pub fn evaluate_agent(
     let mut successes = 0;
     for k in 0..episodes {
         let (mut obs, _) = env.reset(Some(seed + k as u64))?;
-        let mut state = agent.initial_state(1);
+        policy.begin_episode();
         let mut ret = 0.0;
         loop {
-            let a = agent.act_unperturbed(&obs, &mut state);
+            let a = policy.act(&obs);
             let s = env.step(&to_env_action(&a, &space.low, &space.high))?;
             ret += s.reward;
             if s.done() {
@@ -762,8 +795,18 @@ pub fn evaluate_agent(
     })
 }
 
-/// Maps an action in the agent's `[-1, 1]` space to the env's bounds.
-fn to_env_action(a: &[f32], low: &[f32], high: &[f32]) -> Vec<f32> {
+/// [`evaluate_policy`] for an [`RdpgAgent`] (its unperturbed actor).
+pub fn evaluate_agent(
+    agent: &mut RdpgAgent,
+    cfg: &TrainConfig,
+    episodes: usize,
+    seed: u64,
+) -> Result<EvalRecord> {
+    evaluate_policy(&mut RdpgPolicy::new(agent), cfg, episodes, seed)
+}
+
+/// Maps an action in the agent's `[-1, 1]` space to the env's bounds (clipping first).
+pub fn to_env_action(a: &[f32], low: &[f32], high: &[f32]) -> Vec<f32> {
     a.iter()
         .zip(low.iter().zip(high))
         .map(|(&x, (&lo, &hi))| lo + (x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (hi - lo))

@@ -195,7 +195,8 @@ fn experience_injection_loads_teachers_under_the_cap() {
     use rdpg_agents::inject::{record, InjectionConfig, TeacherFile};
     let (mut train, agent) = small();
     let mut teacher_agent = rdpg_agents::RdpgAgent::new(agent.clone(), 2, 1, 5).unwrap();
-    let t = record(&mut teacher_agent, &train, 12, 77, 0.3, "test").unwrap();
+    let mut policy = rdpg_agents::train::RdpgPolicy::new(&mut teacher_agent);
+    let t = record(&mut policy, &train, 12, 77, 0.3, "test").unwrap();
     assert_eq!(t.episodes.len(), 12);
     assert!(t
         .episodes

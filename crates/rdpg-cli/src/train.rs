@@ -597,7 +597,7 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     };
     let (exp, mut agent) = load_run_agent(&run, which)?;
     let t = rdpg_agents::inject::record(
-        &mut agent,
+        &mut rdpg_agents::train::RdpgPolicy::new(&mut agent),
         &exp.train,
         a.episodes,
         a.seed,
