@@ -11,6 +11,7 @@
 //! ([`Trainer::save`]) and resumed ([`Trainer::load`]) bit-identically: episodes in progress
 //! are rebuilt from their seed and actions.
 
+use std::borrow::BorrowMut;
 use std::path::Path;
 
 use rdpg_core::noise::{
@@ -726,27 +727,29 @@ pub trait DeterministicPolicy {
     fn act(&mut self, obs: &[f32]) -> Vec<f32>;
 }
 
-/// An [`RdpgAgent`] as a [`DeterministicPolicy`]: the unperturbed actor with its own recurrent
-/// state.
-pub struct RdpgPolicy<'a> {
-    agent: &'a mut RdpgAgent,
+/// An [`RdpgAgent`] (owned or borrowed) as a [`DeterministicPolicy`]: the unperturbed actor
+/// with its own recurrent state.
+pub struct RdpgPolicy<A> {
+    agent: A,
     state: ActorState,
 }
 
-impl<'a> RdpgPolicy<'a> {
-    /// Wraps `agent`.
-    pub fn new(agent: &'a mut RdpgAgent) -> Self {
-        let state = agent.initial_state(1);
+impl<A: BorrowMut<RdpgAgent>> RdpgPolicy<A> {
+    /// Wraps `agent` (`RdpgAgent` or `&mut RdpgAgent`).
+    pub fn new(agent: A) -> Self {
+        let state = agent.borrow().initial_state(1);
         Self { agent, state }
     }
 }
 
-impl DeterministicPolicy for RdpgPolicy<'_> {
+impl<A: BorrowMut<RdpgAgent>> DeterministicPolicy for RdpgPolicy<A> {
     fn begin_episode(&mut self) {
-        self.state = self.agent.initial_state(1);
+        self.state = self.agent.borrow().initial_state(1);
     }
     fn act(&mut self, obs: &[f32]) -> Vec<f32> {
-        self.agent.act_unperturbed(obs, &mut self.state)
+        self.agent
+            .borrow_mut()
+            .act_unperturbed(obs, &mut self.state)
     }
 }
 

@@ -1,12 +1,14 @@
 //! `rdpg`: the command-line front end of the rdpg framework.
 //!
 //! Subcommands: `train` (an experiment file to a run directory), `eval` (a trained agent on
-//! held-out seeds), `record` (a teacher's episodes for experience injection), `rollout` (replay a fixed action sequence and print the trajectory as JSON
+//! held-out seeds), `record` (a teacher's episodes for experience injection), `plot` and
+//! `compare` (learning curves, a Table-I-shaped comparison), `rollout` (replay a fixed action sequence and print the trajectory as JSON
 //! lines), `render` (an episode to PNG frames and an animated GIF), `bench` (throughput).
 
 mod bench;
 mod experiment;
 mod render;
+mod report;
 mod rollout;
 mod train;
 
@@ -29,6 +31,10 @@ enum Command {
     Eval(train::EvalArgs),
     /// Record a trained agent's episodes as a teacher file for experience injection.
     Record(train::RecordArgs),
+    /// Learning curves of runs as a PNG (training return and evaluations).
+    Plot(report::PlotArgs),
+    /// Compare runs: a Markdown table in the shape of the paper's Table I and an overlay plot.
+    Compare(report::CompareArgs),
     /// Replay a fixed action sequence and print one JSON object per step.
     Rollout(rollout::RolloutArgs),
     /// Render an episode to an animated GIF (and optionally PNG frames).
@@ -44,6 +50,8 @@ fn main() -> Result<()> {
         Command::Train(a) => train::run(&a),
         Command::Eval(a) => train::eval(&a),
         Command::Record(a) => train::record(&a),
+        Command::Plot(a) => report::plot(&a),
+        Command::Compare(a) => report::compare(&a),
         Command::Rollout(a) => rollout::run(&a),
         Command::Render(a) => render::run(&a),
         Command::Bench(b) => bench::run(&b),

@@ -2,8 +2,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
+use rdpg_agents::train::to_env_action;
 use rdpg_core::rng::NpRng;
 use rdpg_envs::Renderable;
 use rdpg_render::{downscale, rasterize, save_png, GifWriter};
@@ -20,9 +21,15 @@ pub enum Policy {
 /// Arguments of `rdpg render`.
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// Environment id.
-    #[arg(long, default_value = "BipedalWalker-v3")]
-    env: String,
+    /// Environment id (default: BipedalWalker-v3, or the run's environment with `--run`).
+    #[arg(long)]
+    env: Option<String>,
+    /// Drive the episode with the trained agent of this run directory (deterministic).
+    #[arg(long, conflicts_with = "policy")]
+    run: Option<PathBuf>,
+    /// With `--run`: `best` or `latest` agent.
+    #[arg(long, default_value = "best", requires = "run")]
+    checkpoint: String,
     /// Seed of the episode.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -46,36 +53,71 @@ pub struct RenderArgs {
     scale_down: u32,
 }
 
-/// Runs `rdpg render` with a fixed policy.
+/// Runs `rdpg render` with a fixed policy or a run's trained agent.
 pub fn run(args: &RenderArgs) -> Result<()> {
-    let mut env = rdpg_envs::make(&args.env)?;
-    let dim = env.action_space().dim();
-    let (lo, hi) = (
-        env.action_space().low.clone(),
-        env.action_space().high.clone(),
-    );
-    let mut rng = NpRng::from_seed(args.seed.wrapping_add(1_000_003));
-    let policy = args.policy;
-    let summary = render_episode(
-        &mut env,
-        args.seed,
-        |_obs| match policy {
-            Policy::Random => (0..dim)
-                .map(|i| rng.uniform(lo[i] as f64, hi[i] as f64) as f32)
-                .collect(),
-            Policy::Zeros => vec![0.0; dim],
-        },
-        &RenderTarget {
-            gif: args.gif.clone(),
-            png_dir: args.png_dir.clone(),
-            every: args.every.max(1),
-            scale_down: args.scale_down.max(1),
-            max_steps: args.max_steps,
-        },
-    )?;
+    let target = RenderTarget {
+        gif: args.gif.clone(),
+        png_dir: args.png_dir.clone(),
+        every: args.every.max(1),
+        scale_down: args.scale_down.max(1),
+        max_steps: args.max_steps,
+    };
+    let (env_id, summary) = if let Some(run) = &args.run {
+        let (exp, mut policy) = crate::train::load_run_policy(run, &args.checkpoint)?;
+        if args.env.as_ref().is_some_and(|e| *e != exp.train.env) {
+            bail!(
+                "--env {:?} differs from the run's environment {:?}",
+                args.env.as_deref().unwrap_or_default(),
+                exp.train.env
+            );
+        }
+        // The agent sees the run's observation mask; the reward shown is the stock one.
+        let opts = rdpg_envs::EnvOptions {
+            hide_obs: exp.train.hide_obs.clone(),
+            ..Default::default()
+        };
+        let mut env = rdpg_envs::make_with(&exp.train.env, &opts)?;
+        let (lo, hi) = (
+            env.action_space().low.clone(),
+            env.action_space().high.clone(),
+        );
+        policy.begin_episode();
+        let summary = render_episode(
+            &mut env,
+            args.seed,
+            |obs| to_env_action(&policy.act(obs), &lo, &hi),
+            &target,
+        )?;
+        (exp.train.env, summary)
+    } else {
+        let id = args
+            .env
+            .clone()
+            .unwrap_or_else(|| "BipedalWalker-v3".into());
+        let mut env = rdpg_envs::make(&id)?;
+        let dim = env.action_space().dim();
+        let (lo, hi) = (
+            env.action_space().low.clone(),
+            env.action_space().high.clone(),
+        );
+        let mut rng = NpRng::from_seed(args.seed.wrapping_add(1_000_003));
+        let policy = args.policy;
+        let summary = render_episode(
+            &mut env,
+            args.seed,
+            |_obs| match policy {
+                Policy::Random => (0..dim)
+                    .map(|i| rng.uniform(lo[i] as f64, hi[i] as f64) as f32)
+                    .collect(),
+                Policy::Zeros => vec![0.0; dim],
+            },
+            &target,
+        )?;
+        (id, summary)
+    };
     println!(
         "{} seed {}: return {:.3} over {} steps ({}), {} frames -> {}",
-        args.env,
+        env_id,
         args.seed,
         summary.ret,
         summary.steps,

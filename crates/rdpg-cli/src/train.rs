@@ -19,7 +19,10 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use rdpg_agents::train::{evaluate_agent, EpisodeRecord, EvalRecord, TrainObserver, Trainer};
+use rdpg_agents::train::{
+    evaluate_policy, DeterministicPolicy, EpisodeRecord, EvalRecord, RdpgPolicy, TrainObserver,
+    Trainer,
+};
 use rdpg_agents::{RdpgAgent, UpdateStats};
 use serde::{Deserialize, Serialize};
 
@@ -486,6 +489,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if std::mem::take(&mut log.new_best) {
             save_best(trainer.agent(), &best, log.best_eval.as_ref())?;
         }
+        log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
             trainer.save(&latest)?;
             log.flush()?;
@@ -595,9 +599,9 @@ pub fn record(a: &RecordArgs) -> Result<()> {
         }
         _ => (a.checkpoint.clone(), "best"),
     };
-    let (exp, mut agent) = load_run_agent(&run, which)?;
+    let (exp, mut policy) = load_run_policy(&run, which)?;
     let t = rdpg_agents::inject::record(
-        &mut rdpg_agents::train::RdpgPolicy::new(&mut agent),
+        policy.as_mut(),
         &exp.train,
         a.episodes,
         a.seed,
@@ -626,8 +630,12 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     Ok(())
 }
 
-/// Loads the agent of a run directory (`best` or `latest`) and its experiment.
-pub fn load_run_agent(run: &Path, which: &str) -> Result<(Experiment, RdpgAgent)> {
+/// Loads the agent of a run directory (`best` or `latest`) as a deterministic policy, with
+/// the run's experiment.
+pub fn load_run_policy(
+    run: &Path,
+    which: &str,
+) -> Result<(Experiment, Box<dyn DeterministicPolicy>)> {
     let exp = Experiment::load(&run.join("config.toml"), &[])
         .with_context(|| format!("{} is not a run directory", run.display()))?;
     let sub = match which {
@@ -636,7 +644,7 @@ pub fn load_run_agent(run: &Path, which: &str) -> Result<(Experiment, RdpgAgent)
     };
     let dir = run.join("checkpoints").join(sub).join("agent");
     let agent = RdpgAgent::load(&dir).with_context(|| format!("loading {}", dir.display()))?;
-    Ok((exp, agent))
+    Ok((exp, Box::new(RdpgPolicy::new(agent))))
 }
 
 /// `rdpg eval`.
@@ -644,9 +652,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     if a.episodes == 0 {
         bail!("--episodes must be at least 1");
     }
-    let (exp, mut agent) = load_run_agent(&a.run, &a.checkpoint)?;
+    let (exp, mut policy) = load_run_policy(&a.run, &a.checkpoint)?;
     let seed = a.seed.unwrap_or(exp.train.eval_seed);
-    let r = evaluate_agent(&mut agent, &exp.train, a.episodes, seed)?;
+    let r = evaluate_policy(policy.as_mut(), &exp.train, a.episodes, seed)?;
     #[derive(Serialize)]
     struct Line<'a> {
         run: String,

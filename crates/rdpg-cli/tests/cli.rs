@@ -304,6 +304,79 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--resume"));
 
+    // A teacher recorded from the run, and a student with injection from it.
+    let teacher = tmp("teacher.bin");
+    let out = ok(rdpg()
+        .args([
+            "record",
+            "--episodes",
+            "4",
+            "--noise",
+            "0.1",
+            "--checkpoint",
+        ])
+        .arg(one.join("checkpoints/latest"))
+        .arg("--out")
+        .arg(&teacher));
+    let rec: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (rec["episodes"].as_u64(), rec["steps"].as_u64()),
+        (Some(4), Some(24))
+    );
+    let student = tmp("run-student");
+    let _ = std::fs::remove_dir_all(&student);
+    let injection = format!(
+        "train.injection={{teachers=[{:?}],initial_share=0.5,anneal_steps=300}}",
+        teacher.display().to_string()
+    );
+    ok(rdpg()
+        .args(["train", "--quiet", "--steps", "400", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&student)
+        .args(["--set", "train.warmup_steps=200", "--set", &injection]));
+
+    // Reports: the comparison table names rewards and metrics, the plots are PNGs, and the
+    // trained agent renders.
+    let png = tmp("curves.png");
+    let md = tmp("compare.md");
+    let out = ok(rdpg()
+        .arg("compare")
+        .arg(&one)
+        .arg(&student)
+        .arg("--out")
+        .arg(&md)
+        .arg("--plot")
+        .arg(&png));
+    let table = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert_eq!(std::fs::read_to_string(&md).unwrap(), table);
+    // Two runs of one experiment: labelled by their directories.
+    assert!(
+        table.contains("run-one (rdpg) | CueMemory-v0 | stock | 700 |"),
+        "{table}"
+    );
+    assert!(
+        table.contains("run-student (rdpg) | CueMemory-v0 | stock | 400 |"),
+        "{table}"
+    );
+    assert!(table.contains("R_100MA") && table.contains("stock reward"));
+    assert_eq!(table.lines().filter(|l| l.starts_with("| ")).count(), 3);
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    let png2 = tmp("curves2.png");
+    ok(rdpg().arg("plot").arg(&one).arg("--out").arg(&png2));
+    assert!(std::fs::metadata(&png2).unwrap().len() > 1000);
+    let gif = tmp("cue.gif");
+    let out = ok(rdpg()
+        .args(["render", "--every", "1", "--run"])
+        .arg(&one)
+        .arg("--gif")
+        .arg(&gif));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("over 6 steps (terminated), 7 frames"),
+        "{text}"
+    );
+
     let out = ok(rdpg().args(["eval", "--episodes", "3", "--run"]).arg(&one));
     let line: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(line["episodes"], 3);

@@ -51,6 +51,7 @@ pub struct Scene {
 mod error;
 mod frame;
 mod gif_writer;
+pub mod plot;
 mod png_io;
 mod raster;
 

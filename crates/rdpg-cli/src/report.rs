@@ -1,0 +1,235 @@
+//! `rdpg plot` and `rdpg compare`: learning curves and a Table-I-shaped comparison of runs.
+
+use std::collections::VecDeque;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
+use rdpg_render::{rasterize, save_png};
+
+use crate::train::{Metric, Summary};
+
+/// Arguments of `rdpg plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// Run directories written by `rdpg train`.
+    #[arg(required = true)]
+    runs: Vec<PathBuf>,
+    /// Output PNG.
+    #[arg(long, default_value = "curves.png")]
+    out: PathBuf,
+}
+
+/// Arguments of `rdpg compare`.
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// Run directories written by `rdpg train`.
+    #[arg(required = true)]
+    runs: Vec<PathBuf>,
+    /// Also write the Markdown table to this file (it is always printed).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// The overlay plot of the runs' learning curves.
+    #[arg(long, default_value = "compare.png")]
+    plot: PathBuf,
+}
+
+/// What a run directory holds for reports.
+struct Run {
+    label: String,
+    summary: Summary,
+    /// `(step, return on the training reward)` of every training episode.
+    episodes: Vec<(u64, f64)>,
+    /// `(step, mean stock return)` of every evaluation.
+    evals: Vec<(u64, f64)>,
+}
+
+fn read_run(dir: &Path) -> Result<Run> {
+    let summary: Summary = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("summary.json"))
+            .with_context(|| format!("{} is not a finished run directory", dir.display()))?,
+    )
+    .with_context(|| format!("{}: bad summary.json", dir.display()))?;
+    let text = std::fs::read_to_string(dir.join("metrics.jsonl"))
+        .with_context(|| format!("reading {}", dir.join("metrics.jsonl").display()))?;
+    let (mut episodes, mut evals) = (Vec::new(), Vec::new());
+    for (i, line) in text.lines().enumerate() {
+        let m: Metric = serde_json::from_str(line)
+            .with_context(|| format!("{}/metrics.jsonl:{}", dir.display(), i + 1))?;
+        match m {
+            Metric::Episode { step, ret, .. } => episodes.push((step, ret)),
+            Metric::Eval {
+                step, mean_return, ..
+            } => evals.push((step, mean_return)),
+        }
+    }
+    let label = if summary.name.is_empty() {
+        dir.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    } else {
+        summary.name.clone()
+    };
+    Ok(Run {
+        label,
+        summary,
+        episodes,
+        evals,
+    })
+}
+
+/// Moving average over the last (up to) 100 episodes, at every episode.
+fn moving_average(episodes: &[(u64, f64)]) -> Vec<(f64, f64)> {
+    let mut window = VecDeque::with_capacity(100);
+    let mut sum = 0.0;
+    episodes
+        .iter()
+        .map(|&(step, r)| {
+            window.push_back(r);
+            sum += r;
+            if window.len() > 100 {
+                sum -= window.pop_front().unwrap_or(0.0);
+            }
+            (step as f64, sum / window.len() as f64)
+        })
+        .collect()
+}
+
+/// Writes the two learning-curve panels of `runs` (training return, evaluation) to `out`.
+fn write_curves(runs: &[Run], out: &Path) -> Result<()> {
+    let rewards: Vec<&str> = runs
+        .iter()
+        .map(|r| r.summary.train_reward.as_str())
+        .collect();
+    let reward = if rewards.windows(2).all(|w| w[0] == w[1]) {
+        format!("{} reward", rewards[0])
+    } else {
+        "training reward".into()
+    };
+    let series = |f: &dyn Fn(&Run) -> Vec<(f64, f64)>| -> Vec<Series> {
+        runs.iter()
+            .enumerate()
+            .map(|(i, r)| Series {
+                name: r.label.clone(),
+                points: f(r),
+                color: PALETTE[i % PALETTE.len()],
+            })
+            .collect()
+    };
+    let plots = [
+        LinePlot {
+            title: "Training return (<=100-episode MA)".into(),
+            x_label: "environment steps".into(),
+            y_label: format!("return, {reward}, with noise"),
+            series: series(&|r| moving_average(&r.episodes)),
+        },
+        LinePlot {
+            title: "Deterministic evaluation".into(),
+            x_label: "environment steps".into(),
+            y_label: "mean return, stock reward".into(),
+            series: series(&|r| r.evals.iter().map(|&(s, m)| (s as f64, m)).collect()),
+        },
+    ];
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)?;
+    }
+    save_png(&rasterize(&figure(&plots, 2, 560, 400)), out)
+        .with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}
+
+fn read_runs(dirs: &[PathBuf]) -> Result<Vec<Run>> {
+    if dirs.len() > PALETTE.len() {
+        bail!("at most {} runs at once", PALETTE.len());
+    }
+    let mut runs: Vec<Run> = dirs.iter().map(|d| read_run(d)).collect::<Result<_>>()?;
+    // Runs of the same experiment are told apart by their directory names.
+    let labels: Vec<String> = runs.iter().map(|r| r.label.clone()).collect();
+    for (run, dir) in runs.iter_mut().zip(dirs) {
+        if labels.iter().filter(|l| **l == run.label).count() > 1 {
+            run.label = dir.display().to_string();
+        }
+    }
+    Ok(runs)
+}
+
+/// `rdpg plot`.
+pub fn plot(a: &PlotArgs) -> Result<()> {
+    let runs = read_runs(&a.runs)?;
+    write_curves(&runs, &a.out)?;
+    println!("{}", a.out.display());
+    Ok(())
+}
+
+/// The comparison table in the shape of the paper's Table I.
+fn table(runs: &[Run]) -> String {
+    let mut t = String::new();
+    t += "| model | env | training reward | steps | wall | R_100MA (training reward) | eval return ± std (stock reward, last) | best eval (stock) | success % (last eval) |\n";
+    t += "|---|---|---|---|---|---|---|---|---|\n";
+    for r in runs {
+        let s = &r.summary;
+        let r100 = s
+            .best_r100_train_reward
+            .map_or("n/a (< 100 episodes)".into(), |v| format!("{v:.1}"));
+        let (last, success) = s.last_eval.map_or(("–".into(), "–".into()), |e| {
+            (
+                format!("{:.1} ± {:.1}", e.mean_stock_return, e.std_stock_return),
+                format!("{:.1}", 100.0 * e.success_rate),
+            )
+        });
+        let best = s.best_eval.map_or("–".into(), |e| {
+            format!("{:.1} (step {})", e.mean_stock_return, e.step)
+        });
+        let _ = writeln!(
+            t,
+            "| {} ({}) | {} | {} | {} | {:.0} s | {} | {} | {} | {} |",
+            r.label,
+            s.algo,
+            s.env,
+            s.train_reward,
+            s.steps,
+            s.wall_seconds,
+            r100,
+            last,
+            best,
+            success
+        );
+    }
+    t += "\nR_100MA: best 100-episode moving average of training returns (with exploration noise) on \
+          the training reward, the paper's metric. Evaluations: deterministic policy on held-out \
+          seeds, stock Gymnasium reward. Success: reached the end of the course without falling.\n";
+    t
+}
+
+/// `rdpg compare`.
+pub fn compare(a: &CompareArgs) -> Result<()> {
+    let runs = read_runs(&a.runs)?;
+    let t = table(&runs);
+    print!("{t}");
+    if let Some(out) = &a.out {
+        if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent)?;
+        }
+        std::fs::write(out, &t).with_context(|| format!("writing {}", out.display()))?;
+    }
+    write_curves(&runs, &a.plot)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moving_average_uses_at_most_100_episodes() {
+        let eps: Vec<(u64, f64)> = (0..150)
+            .map(|i| (i, if i < 50 { 0.0 } else { 1.0 }))
+            .collect();
+        let ma = moving_average(&eps);
+        assert_eq!(ma[0], (0.0, 0.0));
+        assert_eq!(ma[99].1, 0.5);
+        assert_eq!(ma[149].1, 1.0);
+    }
+}
