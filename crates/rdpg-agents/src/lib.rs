@@ -36,6 +36,7 @@ pub mod config;
 pub mod error;
 pub mod inject;
 pub mod nets;
+pub mod ppo;
 pub mod rdpg;
 pub mod train;
 

@@ -2,12 +2,13 @@
 //!
 //! ```toml
 //! name = "hardcore-rdpg"          # free text, used in reports
-//! algo = "rdpg"                   # rdpg | ddpg
+//! algo = "rdpg"                   # rdpg | ddpg | ppo
 //! [train]                         # rdpg_agents::train::TrainConfig
 //! env = "BipedalWalkerHardcore-v3"
 //! total_steps = 1_000_000
-//! [agent]                         # rdpg_agents::RdpgConfig
+//! [agent]                         # rdpg_agents::RdpgConfig (rdpg, ddpg)
 //! scan_len = 120
+//! [ppo]                           # rdpg_agents::ppo::PpoConfig (ppo)
 //! [run]                           # RunConfig: checkpoints
 //! checkpoint_every = 50_000
 //! ```
@@ -18,6 +19,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
+use rdpg_agents::ppo::PpoConfig;
 use rdpg_agents::train::TrainConfig;
 use rdpg_agents::RdpgConfig;
 use serde::{Deserialize, Serialize};
@@ -30,6 +32,8 @@ pub enum Algo {
     Rdpg,
     /// DDPG: the same learner with feed-forward networks (`agent.recurrent = false`).
     Ddpg,
+    /// PPO with an adaptive KL penalty (feed-forward, GAE), configured by `[ppo]`.
+    Ppo,
 }
 
 /// Run-directory settings.
@@ -61,9 +65,12 @@ pub struct Experiment {
     /// The training loop: environment, budget, exploration, evaluation, seed.
     #[serde(default)]
     pub train: TrainConfig,
-    /// The learner's hyper-parameters.
+    /// The off-policy learner's hyper-parameters (`rdpg`, `ddpg`).
     #[serde(default)]
     pub agent: RdpgConfig,
+    /// PPO's hyper-parameters (`ppo`).
+    #[serde(default)]
+    pub ppo: PpoConfig,
     /// Checkpointing.
     #[serde(default)]
     pub run: RunConfig,
@@ -96,12 +103,13 @@ impl Experiment {
     /// Checks the sections and their consistency; errors name the key.
     pub fn validate(&self) -> Result<()> {
         self.train.validate()?;
-        self.agent.validate()?;
         match (self.algo, self.agent.recurrent) {
+            (Algo::Ppo, _) => return Ok(self.ppo.validate()?),
             (Algo::Ddpg, true) => bail!("algo = \"ddpg\" needs agent.recurrent = false"),
             (Algo::Rdpg, false) => bail!("algo = \"rdpg\" needs agent.recurrent = true"),
-            _ => Ok(()),
+            _ => {}
         }
+        Ok(self.agent.validate()?)
     }
 
     /// The resolved experiment as TOML (every default written out).

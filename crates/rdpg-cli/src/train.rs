@@ -19,6 +19,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rdpg_agents::ppo::{PpoAgent, PpoTrainer};
 use rdpg_agents::train::{
     evaluate_policy, DeterministicPolicy, EpisodeRecord, EvalRecord, RdpgPolicy, TrainObserver,
     Trainer,
@@ -26,7 +27,7 @@ use rdpg_agents::train::{
 use rdpg_agents::{RdpgAgent, UpdateStats};
 use serde::{Deserialize, Serialize};
 
-use crate::experiment::Experiment;
+use crate::experiment::{Algo, Experiment};
 
 /// Arguments of `rdpg train`.
 #[derive(Debug, Args)]
@@ -412,6 +413,75 @@ impl TrainObserver for Observer<'_> {
     }
 }
 
+/// The trainer of an experiment: off-policy (RDPG, DDPG) or on-policy (PPO).
+enum AnyTrainer {
+    OffPolicy(Box<Trainer>),
+    Ppo(Box<PpoTrainer>),
+}
+
+impl AnyTrainer {
+    fn new(exp: &Experiment) -> Result<Self> {
+        Ok(match exp.algo {
+            Algo::Ppo => Self::Ppo(Box::new(PpoTrainer::new(
+                exp.train.clone(),
+                exp.ppo.clone(),
+            )?)),
+            Algo::Rdpg | Algo::Ddpg => Self::OffPolicy(Box::new(Trainer::new(
+                exp.train.clone(),
+                exp.agent.clone(),
+            )?)),
+        })
+    }
+    fn load(exp: &Experiment, dir: &Path) -> Result<Self> {
+        Ok(match exp.algo {
+            Algo::Ppo => Self::Ppo(Box::new(PpoTrainer::load(dir)?)),
+            Algo::Rdpg | Algo::Ddpg => Self::OffPolicy(Box::new(Trainer::load(dir)?)),
+        })
+    }
+    fn steps(&self) -> u64 {
+        match self {
+            Self::OffPolicy(t) => t.steps(),
+            Self::Ppo(t) => t.steps(),
+        }
+    }
+    fn set_total_steps(&mut self, n: u64) {
+        match self {
+            Self::OffPolicy(t) => t.set_total_steps(n),
+            Self::Ppo(t) => t.set_total_steps(n),
+        }
+    }
+    fn run(&mut self, until: u64, obs: &mut dyn TrainObserver) -> Result<u64> {
+        Ok(match self {
+            Self::OffPolicy(t) => t.run(until, obs)?,
+            Self::Ppo(t) => t.run(until, obs)?,
+        })
+    }
+    fn evaluate(&mut self) -> Result<EvalRecord> {
+        Ok(match self {
+            Self::OffPolicy(t) => t.evaluate()?,
+            Self::Ppo(t) => t.evaluate()?,
+        })
+    }
+    fn save(&mut self, dir: &Path) -> Result<()> {
+        match self {
+            Self::OffPolicy(t) => t.save(dir)?,
+            Self::Ppo(t) => t.save(dir)?,
+        }
+        Ok(())
+    }
+    /// Saves the agent alone (the `best` checkpoint), with the evaluation that chose it.
+    fn save_best(&self, dir: &Path, eval: Option<&EvalRecord>) -> Result<()> {
+        match self {
+            Self::OffPolicy(t) => t.agent().save(dir.join("agent"))?,
+            Self::Ppo(t) => t.agent().save(dir.join("agent"))?,
+        }
+        if let Some(e) = eval {
+            std::fs::write(dir.join("eval.json"), serde_json::to_string_pretty(e)?)?;
+        }
+        Ok(())
+    }
+}
+
 /// `rdpg train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
@@ -423,7 +493,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let (dir, exp, mut trainer) = if let Some(dir) = &a.resume {
         let mut exp = Experiment::load(&dir.join("config.toml"), &[])
             .with_context(|| format!("{} is not a run directory", dir.display()))?;
-        let mut trainer = Trainer::load(&dir.join("checkpoints").join("latest"))
+        let mut trainer = AnyTrainer::load(&exp, &dir.join("checkpoints").join("latest"))
             .with_context(|| format!("resuming {}", dir.display()))?;
         if let Some(n) = a.steps {
             exp.train.total_steps = n;
@@ -452,7 +522,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("creating run directory {}", dir.display()))?;
         std::fs::write(dir.join("config.toml"), exp.to_toml()?)?;
-        let trainer = Trainer::new(exp.train.clone(), exp.agent.clone())?;
+        let trainer = AnyTrainer::new(&exp)?;
         (dir, exp, trainer)
     };
     let total = exp.train.total_steps;
@@ -487,7 +557,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             return Err(e);
         }
         if std::mem::take(&mut log.new_best) {
-            save_best(trainer.agent(), &best, log.best_eval.as_ref())?;
+            trainer.save_best(&best, log.best_eval.as_ref())?;
         }
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
@@ -521,7 +591,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         .on_eval(&r);
         if std::mem::take(&mut log.new_best) {
-            save_best(trainer.agent(), &best, log.best_eval.as_ref())?;
+            trainer.save_best(&best, log.best_eval.as_ref())?;
         }
     }
     trainer.save(&latest)?;
@@ -530,14 +600,6 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     log.bar.finish();
     let s = log.summary(&exp, trainer.steps());
     println!("{}", serde_json::to_string(&s)?);
-    Ok(())
-}
-
-fn save_best(agent: &RdpgAgent, dir: &Path, eval: Option<&EvalRecord>) -> Result<()> {
-    agent.save(dir.join("agent"))?;
-    if let Some(e) = eval {
-        std::fs::write(dir.join("eval.json"), serde_json::to_string_pretty(e)?)?;
-    }
     Ok(())
 }
 
@@ -643,8 +705,15 @@ pub fn load_run_policy(
         other => bail!("--checkpoint {other:?}: expected best or latest"),
     };
     let dir = run.join("checkpoints").join(sub).join("agent");
-    let agent = RdpgAgent::load(&dir).with_context(|| format!("loading {}", dir.display()))?;
-    Ok((exp, Box::new(RdpgPolicy::new(agent))))
+    let policy: Box<dyn DeterministicPolicy> = match exp.algo {
+        Algo::Ppo => {
+            Box::new(PpoAgent::load(&dir).with_context(|| format!("loading {}", dir.display()))?)
+        }
+        Algo::Rdpg | Algo::Ddpg => Box::new(RdpgPolicy::new(
+            RdpgAgent::load(&dir).with_context(|| format!("loading {}", dir.display()))?,
+        )),
+    };
+    Ok((exp, policy))
 }
 
 /// `rdpg eval`.
