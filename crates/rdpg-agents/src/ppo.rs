@@ -45,9 +45,10 @@ use tch::{Device, Kind, Tensor};
 
 use crate::adam::{Adam, AdamConfig};
 use crate::nets::init_from_rng;
+use crate::rdpg::resolve_device;
 use crate::train::{
-    evaluate_policy, to_env_action, DeterministicPolicy, EpisodeRecord, EvalRecord, TrainConfig,
-    TrainObserver,
+    evaluate_policy, read_bin, to_env_action, write_bin, DeterministicPolicy, EpisodeRecord,
+    EvalRecord, TrainConfig, TrainObserver,
 };
 use crate::{AgentError, DeviceSpec, Result, UpdateStats};
 
@@ -377,17 +378,6 @@ impl std::fmt::Debug for PpoAgent {
             .field("kl_coef", &self.kl_coef)
             .field("updates", &self.updates)
             .finish_non_exhaustive()
-    }
-}
-
-fn resolve_device(spec: DeviceSpec) -> Result<Device> {
-    match spec {
-        DeviceSpec::Cpu => Ok(Device::Cpu),
-        DeviceSpec::Cuda if tch::Cuda::is_available() => Ok(Device::Cuda(0)),
-        DeviceSpec::Cuda => Err(AgentError::Device(
-            "device \"cuda\" requested but libtorch sees no CUDA device".into(),
-        )),
-        DeviceSpec::Auto => Ok(Device::cuda_if_available()),
     }
 }
 
@@ -927,15 +917,6 @@ pub struct PpoTrainer {
     st: LoopState,
 }
 
-/// The run's vector env and the action bounds of its environments.
-fn make_envs(cfg: &TrainConfig) -> Result<(VecEnv, Vec<f32>, Vec<f32>)> {
-    let opts = cfg.env_options();
-    let probe = rdpg_envs::make_with(&cfg.env, &opts)?;
-    let space = probe.action_space().clone();
-    let venv = VecEnv::make(&cfg.env, &opts, cfg.num_envs, cfg.workers)?;
-    Ok((venv, space.low, space.high))
-}
-
 /// [`TrainConfig::validate`] plus the options PPO does not support.
 fn validate_train(cfg: &TrainConfig) -> Result<()> {
     cfg.validate()?;
@@ -956,23 +937,12 @@ fn validate_train(cfg: &TrainConfig) -> Result<()> {
     Ok(())
 }
 
-fn write_bin<T: Serialize>(path: &Path, value: &T) -> Result<()> {
-    let file = std::fs::File::create(path)?;
-    bincode::serialize_into(std::io::BufWriter::new(file), value).map_err(|e| ckpt_err(path, e))
-}
-
-fn read_bin<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
-    let file = std::fs::File::open(path).map_err(|e| ckpt_err(path, e))?;
-    bincode::deserialize_from(std::io::BufReader::new(file))
-        .map_err(|e| ckpt_err(path, format!("truncated or corrupt: {e}")))
-}
-
 impl PpoTrainer {
     /// A fresh run (validates both configs).
     pub fn new(train: TrainConfig, cfg: PpoConfig) -> Result<Self> {
         validate_train(&train)?;
         cfg.validate()?;
-        let (mut venv, low, high) = make_envs(&train)?;
+        let (mut venv, low, high) = train.make_envs()?;
         let agent = PpoAgent::new(cfg, venv.obs_dim(), venv.act_dim(), train.seed)?;
         let n = train.num_envs;
         let obs = venv.reset_scheduled(train.seed, &vec![0; n])?;
@@ -1162,7 +1132,7 @@ impl PpoTrainer {
         validate_train(&cfg)?;
         let agent = PpoAgent::load(dir.join("agent"))?;
         let st: LoopState = read_bin(&dir.join("loop.bin"))?;
-        let (mut venv, low, high) = make_envs(&cfg)?;
+        let (mut venv, low, high) = cfg.make_envs()?;
         let n = cfg.num_envs;
         let (d, a) = (venv.obs_dim(), venv.act_dim());
         if (agent.obs_dim(), agent.act_dim()) != (d, a) {

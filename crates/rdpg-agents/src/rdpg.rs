@@ -226,7 +226,8 @@ impl std::fmt::Debug for RdpgAgent {
     }
 }
 
-fn resolve_device(spec: DeviceSpec) -> Result<Device> {
+/// The tch device of a [`DeviceSpec`]; `cuda` without a CUDA device is an error.
+pub(crate) fn resolve_device(spec: DeviceSpec) -> Result<Device> {
     match spec {
         DeviceSpec::Cpu => Ok(Device::Cpu),
         DeviceSpec::Cuda => {

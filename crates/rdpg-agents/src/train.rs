@@ -225,7 +225,7 @@ impl TrainConfig {
     }
 
     /// The vector env of the run and the action bounds of its environments.
-    fn make_envs(&self) -> Result<(VecEnv, Vec<f32>, Vec<f32>)> {
+    pub(crate) fn make_envs(&self) -> Result<(VecEnv, Vec<f32>, Vec<f32>)> {
         let probe = rdpg_envs::make_with(&self.env, &self.env_options())?;
         let space = probe.action_space();
         let venv = VecEnv::make(&self.env, &self.env_options(), self.num_envs, self.workers)?;
@@ -831,13 +831,16 @@ fn make_noise(cfg: &ExplorationConfig, dim: usize) -> ActionNoise {
     }
 }
 
-fn write_bin<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+/// Writes `value` with bincode (checkpoint files).
+pub(crate) fn write_bin<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     let file = std::fs::File::create(path)?;
     bincode::serialize_into(std::io::BufWriter::new(file), value)
         .map_err(|e| AgentError::Checkpoint(format!("{}: {e}", path.display())))
 }
 
-fn read_bin<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
+/// Reads a file written by [`write_bin`]; a missing, truncated or corrupt file is a
+/// checkpoint error naming it.
+pub(crate) fn read_bin<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
     let file = std::fs::File::open(path)
         .map_err(|e| AgentError::Checkpoint(format!("{}: {e}", path.display())))?;
     bincode::deserialize_from(std::io::BufReader::new(file)).map_err(|e| {
