@@ -473,3 +473,38 @@ fn every_config_trains() {
         );
     }
 }
+
+/// Ctrl-C (SIGINT) saves `checkpoints/latest` before exiting, and the run resumes from it.
+#[test]
+fn interrupt_saves_and_the_run_resumes() {
+    let dir = tmp("run-interrupted");
+    let _ = std::fs::remove_dir_all(&dir);
+    let child = rdpg()
+        .args(["train", "--quiet", "--config"])
+        .arg(configs_dir().join("cue-rdpg.toml"))
+        .arg("--out")
+        .arg(&dir)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait until training is under way (the first evaluation is flushed at step 1000).
+    let t0 = std::time::Instant::now();
+    while std::fs::read_to_string(dir.join("evals.csv")).map_or(true, |s| s.lines().count() < 2) {
+        assert!(
+            t0.elapsed().as_secs() < 120,
+            "no evaluation after 2 minutes"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    ok(Command::new("kill").args(["-INT", &child.id().to_string()]));
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("interrupted at step"), "{err}");
+    assert!(dir.join("checkpoints/latest/loop.bin").exists());
+    let out = ok(rdpg()
+        .args(["train", "--quiet", "--steps", "3000", "--resume"])
+        .arg(&dir));
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["steps"], 3000);
+}
