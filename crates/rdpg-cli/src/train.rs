@@ -6,7 +6,8 @@
 //!   evaluation (`"kind":"eval"`), with the same rows in `episodes.csv` and `evals.csv`;
 //! - `checkpoints/latest/`: the full training state (networks, optimiser, replay, RNGs), which
 //!   `--resume` continues from; `checkpoints/best/`: the agent of the best evaluation;
-//! - `summary.json`: the run's headline numbers, each named by its reward and metric.
+//! - `summary.json`: the run's headline numbers, each named by its reward and metric;
+//! - `tb/`: the same metrics as TensorBoard scalars (`tensorboard --logdir runs/`).
 
 use std::collections::VecDeque;
 use std::fs::File;
@@ -26,6 +27,7 @@ use rdpg_agents::train::{
 };
 use rdpg_agents::{RdpgAgent, UpdateStats};
 use serde::{Deserialize, Serialize};
+use syntaxdot_summary::SummaryWriter;
 
 use crate::experiment::{Algo, Experiment};
 
@@ -167,6 +169,8 @@ struct RunLog {
     wall_offset: f64,
     bar: ProgressBar,
     stop: Arc<AtomicBool>,
+    /// TensorBoard scalars (`tb/`), written as metrics arrive.
+    tb: SummaryWriter<BufWriter<File>>,
 }
 
 const EPISODES_HEADER: &str = "step,return,stock_return,len,success,r100,wall\n";
@@ -223,6 +227,8 @@ impl RunLog {
             wall_offset: 0.0,
             bar,
             stop,
+            tb: SummaryWriter::from_prefix(dir.join("tb").join("rdpg"))
+                .with_context(|| format!("creating {}", dir.join("tb").display()))?,
         };
         for m in old {
             match &m {
@@ -291,6 +297,7 @@ impl RunLog {
     fn write(&mut self, m: &Metric) -> Result<()> {
         serde_json::to_writer(&mut self.jsonl, m)?;
         self.jsonl.write_all(b"\n")?;
+        self.write_tensorboard(m)?;
         match m {
             Metric::Episode {
                 step,
@@ -316,6 +323,40 @@ impl RunLog {
                 self.evals_csv,
                 "{step},{mean_return},{std_return},{success_rate},{wall:.3}"
             )?,
+        }
+        Ok(())
+    }
+
+    fn write_tensorboard(&mut self, m: &Metric) -> Result<()> {
+        let scalars: Vec<(&str, f64)> = match m {
+            Metric::Episode {
+                ret,
+                stock_return,
+                r100,
+                ..
+            } => {
+                let mut v = vec![
+                    ("train/return", *ret),
+                    ("train/stock_return", *stock_return),
+                ];
+                v.extend(r100.map(|r| ("train/return_100ma", r)));
+                v
+            }
+            Metric::Eval {
+                mean_return,
+                std_return,
+                success_rate,
+                ..
+            } => vec![
+                ("eval/mean_stock_return", *mean_return),
+                ("eval/std_stock_return", *std_return),
+                ("eval/success_rate", *success_rate),
+            ],
+        };
+        for (tag, v) in scalars {
+            self.tb
+                .write_scalar(tag, m.step() as i64, v as f32)
+                .context("writing TensorBoard events")?;
         }
         Ok(())
     }

@@ -244,6 +244,16 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         assert!(one.join(f).exists(), "{f} missing");
     }
     assert!(one.join("checkpoints/best/agent").exists());
+    let tb: Vec<_> = std::fs::read_dir(one.join("tb"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert!(
+        tb.len() == 1
+            && tb[0].to_string_lossy().contains("tfevents")
+            && std::fs::metadata(&tb[0]).unwrap().len() > 10_000,
+        "{tb:?}"
+    );
     assert!(one.join("checkpoints/latest/replay.bin").exists());
     let lines: Vec<Value> = std::fs::read_to_string(one.join("metrics.jsonl"))
         .unwrap()
