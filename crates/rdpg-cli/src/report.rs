@@ -199,7 +199,8 @@ fn table(runs: &[Run]) -> String {
     }
     t += "\nR_100MA: best 100-episode moving average of training returns (with exploration noise) on \
           the training reward, the paper's metric. Evaluations: deterministic policy on held-out \
-          seeds, stock Gymnasium reward. Success: reached the end of the course without falling.\n";
+          seeds, stock Gymnasium reward. Success: the environment's success flag (walkers: reached \
+          the end of the course without falling).\n";
     t
 }
 
