@@ -120,7 +120,7 @@ fn write_curves(runs: &[Run], out: &Path) -> Result<()> {
     };
     let plots = [
         LinePlot {
-            title: "Training return (<=100-episode MA)".into(),
+            title: "Training return, 100-ep. MA".into(),
             x_label: "environment steps".into(),
             y_label: format!("return, {reward}, with noise"),
             series: series(&|r| moving_average(&r.episodes)),
