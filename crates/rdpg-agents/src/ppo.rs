@@ -45,7 +45,7 @@ use tch::{Device, Kind, Tensor};
 
 use crate::adam::{Adam, AdamConfig};
 use crate::nets::init_from_rng;
-use crate::rdpg::resolve_device;
+use crate::rdpg::{resolve_device, sorted_vars, tensor_to_vec};
 use crate::train::{
     evaluate_policy, read_bin, to_env_action, write_bin, DeterministicPolicy, EpisodeRecord,
     EvalRecord, TrainConfig, TrainObserver,
@@ -383,23 +383,10 @@ impl std::fmt::Debug for PpoAgent {
 
 /// Variables whose name starts with `prefix`, sorted by name.
 fn vars_with_prefix(vs: &VarStore, prefix: &str) -> Vec<(String, Tensor)> {
-    let mut v: Vec<_> = vs
-        .variables()
+    sorted_vars(vs)
         .into_iter()
         .filter(|(n, _)| n.starts_with(prefix))
-        .collect();
-    v.sort_by(|a, b| a.0.cmp(&b.0));
-    v
-}
-
-fn to_f32_vec(t: &Tensor) -> Vec<f32> {
-    let t = t
-        .detach()
-        .to_kind(Kind::Float)
-        .to_device(Device::Cpu)
-        .contiguous()
-        .view([-1]);
-    Vec::<f32>::try_from(&t).expect("tensor to Vec<f32>")
+        .collect()
 }
 
 fn ckpt_err(path: &Path, e: impl std::fmt::Display) -> AgentError {
@@ -488,7 +475,7 @@ impl PpoAgent {
 
     /// The policy's log standard deviations, `[act_dim]`.
     pub fn log_std(&self) -> Vec<f32> {
-        to_f32_vec(&self.log_std)
+        tensor_to_vec(&self.log_std)
     }
 
     /// `obs` (`[n, obs_dim]` row-major) as a tensor on the agent's device.
@@ -512,7 +499,7 @@ impl PpoAgent {
     /// If `obs.len()` is not a multiple of `obs_dim`.
     pub fn policy_mean(&self, obs: &[f32]) -> Vec<f32> {
         let o = self.obs_tensor(obs);
-        to_f32_vec(&tch::no_grad(|| self.policy.forward(&o)))
+        tensor_to_vec(&tch::no_grad(|| self.policy.forward(&o)))
     }
 
     /// The deterministic actions of `n` observations: the policy means clamped to `[-1, 1]`,
@@ -549,7 +536,7 @@ impl PpoAgent {
     /// If `obs.len()` is not a multiple of `obs_dim`.
     pub fn values(&self, obs: &[f32]) -> Vec<f32> {
         let o = self.obs_tensor(obs);
-        to_f32_vec(&tch::no_grad(|| self.value.forward(&o)))
+        tensor_to_vec(&tch::no_grad(|| self.value.forward(&o)))
     }
 
     /// Checks a batch's array lengths against each other and the agent.
@@ -703,7 +690,7 @@ impl PpoAgent {
     pub fn weights(&self) -> Vec<(String, Vec<f64>)> {
         vars_with_prefix(&self.vs, "")
             .into_iter()
-            .map(|(n, t)| (n, to_f32_vec(&t).into_iter().map(f64::from).collect()))
+            .map(|(n, t)| (n, tensor_to_vec(&t).into_iter().map(f64::from).collect()))
             .collect()
     }
 

@@ -246,13 +246,14 @@ pub(crate) fn resolve_device(spec: DeviceSpec) -> Result<Device> {
 }
 
 /// Variables of a var store as (name, tensor), sorted by name (a stable order).
-fn sorted_vars(vs: &VarStore) -> Vec<(String, Tensor)> {
+pub(crate) fn sorted_vars(vs: &VarStore) -> Vec<(String, Tensor)> {
     let mut v: Vec<_> = vs.variables().into_iter().collect();
     v.sort_by(|a, b| a.0.cmp(&b.0));
     v
 }
 
-fn tensor_to_vec(t: &Tensor) -> Vec<f32> {
+/// A tensor's values as `f32`, flattened row-major (copied to the CPU).
+pub(crate) fn tensor_to_vec(t: &Tensor) -> Vec<f32> {
     let t = t
         .detach()
         .to_kind(Kind::Float)
