@@ -15,7 +15,7 @@ rm -rf "$out/runs"
 mkdir -p "$out"
 for algo in rdpg ddpg; do
     target/release/rdpg train --config "configs/walker-$algo.toml" --steps "$steps" \
-        --set train.warmup_steps=1000 --set train.updates_per_step=0.1 \
+        --set off_policy.warmup_steps=1000 --set off_policy.updates_per_step=0.1 \
         --set train.eval_every=2000 --set train.eval_episodes=3 \
         --out "$out/runs/walker-$algo"
 done

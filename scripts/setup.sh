@@ -5,7 +5,7 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
-# shellcheck source=scripts/deps.sh
-source scripts/deps.sh
+# shellcheck source=scripts/setup/deps.sh
+source scripts/setup/deps.sh
 cargo build --release -p rdpg-cli
 echo "setup done: $(ls -1 target/release/rdpg)"

@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# The project's test command (README): setup, then the three gates — formatting, clippy with
-# warnings as errors, and the whole test suite (golden traces, determinism, end-to-end runs,
-# learning checks).
+# The project's test command (README): setup, then the gates — formatting, clippy with
+# warnings as errors, the whole test suite (golden traces, determinism, end-to-end runs,
+# learning checks) and the API docs with warnings denied.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
-# shellcheck source=scripts/deps.sh
-source scripts/deps.sh
+# shellcheck source=scripts/setup/deps.sh
+source scripts/setup/deps.sh
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps

@@ -1,7 +1,7 @@
 //! Builds Box2D 2.3 from sources fetched at setup (never committed) plus rdpg's C shim.
 //!
 //! Source directory: `$RDPG_BOX2D_DIR` if set, else `<workspace>/.deps/box2d-py-2.3.8`
-//! (what `scripts/fetch-box2d.sh` fetches: pybox2d's own Box2D 2.3.0, the engine Gymnasium runs
+//! (what `scripts/setup/fetch_box2d.sh` fetches: pybox2d's own Box2D 2.3.0, the engine Gymnasium runs
 //! on). The directory must contain `Box2D/Box2D.h`. A stock Box2D 2.3.1 tree is accepted too;
 //! it is detected by its `b2Sweep::Advance` and reported through `rdpg_box2d::FLAVOR` so that
 //! the parity tests can say so and fall back to a tolerance.
@@ -24,7 +24,7 @@ fn main() {
     if !header.is_file() {
         panic!(
             "\n\nBox2D 2.3 sources not found: {} does not exist.\n\
-             Run `scripts/fetch-box2d.sh` (or `scripts/setup.sh`) to fetch pybox2d's Box2D 2.3.0 \
+             Run `scripts/setup/fetch_box2d.sh` (or `scripts/setup.sh`) to fetch pybox2d's Box2D 2.3.0 \
              from PyPI (box2d-py==2.3.8), or point RDPG_BOX2D_DIR at a directory holding \
              Box2D/Box2D.h.\n\n",
             header.display()

@@ -1,5 +1,5 @@
 //! Update throughput of the tch learner at BipedalWalker sizes (obs 24, act 4), the
-//! counterpart of `scripts/pytorch_update_bench.py`. Prints one JSON line.
+//! counterpart of `scripts/bench/pytorch_update_bench.py`. Prints one JSON line.
 //!
 //! ```text
 //! cargo run --release -p rdpg-agents --example bench_update -- \
@@ -8,8 +8,9 @@
 //!     [--device cpu|cuda|auto]
 //! ```
 
-use rdpg_agents::bench::bench_update_with;
-use rdpg_agents::{DeviceSpec, RdpgConfig, ScanMethod};
+use rdpg_agents::rdpg::bench::bench_update_with;
+use rdpg_agents::rdpg::ScanMethod;
+use rdpg_agents::{DeviceSpec, RdpgConfig};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -1,14 +1,21 @@
 //! Actor-critic learners for rdpg on libtorch (through `tch`): the recurrent deterministic
-//! policy gradient (RDPG) of Song et al. (ICARCV 2018) and its feed-forward (DDPG) variant.
+//! policy gradient (RDPG) of Song et al. (ICARCV 2018), its feed-forward DDPG variant, and the
+//! PPO-KL baseline of the paper's Table I.
 //!
-//! This is the only crate of the workspace that names the tensor library.
+//! This is the only crate of the workspace that names the tensor library. One room per
+//! concern:
 //!
-//! * [`RdpgConfig`]: hyper-parameters (serde, validated).
-//! * [`nets`]: actor and critic networks (lidar convolution trunk or MLP, LSTM or FC core).
-//! * [`RdpgAgent`]: acting ([`RdpgAgent::act`] with an [`ActorState`]), the update of
-//!   Algorithm 1 on an [`rdpg_core::SequenceBatch`] ([`RdpgAgent::update`]), checkpoints
-//!   ([`RdpgAgent::save`] / [`RdpgAgent::load`], optimiser moments included).
-//! * [`bench`](mod@bench): synthetic BipedalWalker-shaped batches and an update-throughput benchmark.
+//! * [`common`]: what every algorithm shares: the run config ([`TrainConfig`]), the
+//!   [`Trainer`] surface and its observers, the collector (vector env, seed schedule, resume by
+//!   replaying actions), deterministic policies and their evaluation, checkpoint I/O, tensor
+//!   helpers, Adam.
+//! * [`rdpg`]: the RDPG/DDPG agent, Algorithm 1's update (`rdpg/update.rs`), the off-policy
+//!   trainer and experience injection.
+//! * [`ppo`]: PPO-KL's agent, GAE and on-policy trainer.
+//!
+//! A driver runs any algorithm through [`new_trainer`] / [`load_trainer`] (a
+//! `Box<dyn Trainer>`) and [`load_policy`] (a `Box<dyn DeterministicPolicy>`), with no match
+//! on the algorithm of its own.
 //!
 //! # Linking (for binary crates)
 //!
@@ -30,20 +37,67 @@
 
 #![warn(missing_docs)]
 
-pub mod adam;
-pub mod bench;
-pub mod config;
+pub mod common;
 pub mod error;
-pub mod inject;
-pub mod nets;
 pub mod ppo;
 pub mod rdpg;
-pub mod train;
 
-pub use config::{DeviceSpec, RdpgConfig, ScanMethod, TargetNoise, Trunk};
+use std::path::Path;
+
+pub use common::tensor::set_flush_denormal;
+pub use common::{
+    Algo, DeterministicPolicy, DeviceSpec, EpisodeRecord, EvalRecord, Quiet, TrainConfig,
+    TrainObserver, Trainer, UpdateStats,
+};
 pub use error::{AgentError, Result};
-pub use rdpg::{ActorState, PhaseTimes, RdpgAgent, UpdateStats};
-pub use train::memory_task_config;
+pub use ppo::{PpoConfig, PpoTrainer};
+pub use rdpg::{OffPolicyConfig, OffPolicyTrainer, RdpgAgent, RdpgConfig};
+
+use common::checkpoint::{Header, TrainerKind};
+
+/// An algorithm with its own settings: what [`new_trainer`] needs besides the run config.
+#[derive(Debug, Clone, PartialEq)]
+#[allow(clippy::large_enum_variant)] // built once per run; boxing would only add noise
+pub enum Learner {
+    /// RDPG (`agent.recurrent = true`) or DDPG (`false`): the off-policy learner and its loop.
+    OffPolicy {
+        /// The learner's hyper-parameters.
+        agent: RdpgConfig,
+        /// The loop's settings (warm-up, replay, exploration, injection).
+        off_policy: OffPolicyConfig,
+    },
+    /// PPO with an adaptive KL penalty.
+    Ppo(PpoConfig),
+}
+
+/// A fresh training run of `learner` with the run settings `train` (all configs validated).
+pub fn new_trainer(train: TrainConfig, learner: Learner) -> Result<Box<dyn Trainer>> {
+    Ok(match learner {
+        Learner::OffPolicy { agent, off_policy } => {
+            Box::new(OffPolicyTrainer::new(train, off_policy, agent)?)
+        }
+        Learner::Ppo(ppo) => Box::new(PpoTrainer::new(train, ppo)?),
+    })
+}
+
+/// Resumes the trainer checkpoint in `dir`, whatever its algorithm (read from its
+/// `checkpoint.json`). Continuing gives the same result as never having stopped.
+pub fn load_trainer(dir: &Path) -> Result<Box<dyn Trainer>> {
+    Ok(match Header::read(dir, None)?.trainer {
+        TrainerKind::OffPolicy => Box::new(OffPolicyTrainer::load(dir)?),
+        TrainerKind::Ppo => Box::new(PpoTrainer::load(dir)?),
+    })
+}
+
+/// Loads the agent saved in `dir` (by [`Trainer::save_agent`], e.g. a run's
+/// `checkpoints/best/agent`) as a deterministic policy on the CPU-or-GPU device its config
+/// names.
+pub fn load_policy(algo: Algo, dir: &Path) -> Result<Box<dyn DeterministicPolicy>> {
+    Ok(match algo {
+        Algo::Rdpg | Algo::Ddpg => Box::new(rdpg::RdpgPolicy::new(RdpgAgent::load(dir)?)),
+        Algo::Ppo => Box::new(ppo::PpoAgent::load(dir)?),
+    })
+}
 
 /// Whether libtorch reports a usable CUDA device.
 pub fn cuda_available() -> bool {
@@ -53,35 +107,6 @@ pub fn cuda_available() -> bool {
 /// Sets the number of intra-op CPU threads libtorch uses (process-wide).
 pub fn set_num_threads(n: usize) {
     tch::set_num_threads(n as i32);
-}
-
-/// Makes the CPU flush denormal (subnormal) floats to zero on the calling thread (the x86
-/// MXCSR flags FTZ and DAZ; a no-op elsewhere). Returns whether the flags were set.
-///
-/// Training drives some values (LSTM gate derivatives, Adam moments of tiny gradients) into the
-/// subnormal range, where x86 arithmetic is up to 100x slower: without this, an update on the
-/// memory task slows down several-fold as training goes on. This is what
-/// `torch.set_flush_denormal(True)` does; like it, it affects only the calling thread, so call it
-/// on the thread that acts and updates (the trainer does, see [`RdpgConfig::flush_denormal`]).
-pub fn set_flush_denormal(on: bool) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        const FTZ_DAZ: u32 = (1 << 15) | (1 << 6);
-        let mut csr: u32 = 0;
-        // SAFETY: stmxcsr/ldmxcsr read and write the SSE control register of this thread;
-        // FTZ and DAZ only change how subnormal results and inputs are treated.
-        unsafe {
-            std::arch::asm!("stmxcsr [{}]", in(reg) &mut csr, options(nostack));
-            csr = if on { csr | FTZ_DAZ } else { csr & !FTZ_DAZ };
-            std::arch::asm!("ldmxcsr [{}]", in(reg) &csr, options(nostack, readonly));
-        }
-        true
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        let _ = on;
-        false
-    }
 }
 
 #[cfg(test)]

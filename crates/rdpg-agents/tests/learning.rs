@@ -5,21 +5,24 @@
 //! a feed-forward policy cannot beat 0 in expectation, a recurrent one can reach 1. RDPG must
 //! learn it; DDPG with the same budget must not.
 
-use rdpg_agents::train::{ExplorationConfig, Quiet, TrainConfig, Trainer};
-use rdpg_agents::{RdpgConfig, Trunk};
+use rdpg_agents::rdpg::{ExplorationConfig, OffPolicyConfig, OffPolicyTrainer, Trunk};
+use rdpg_agents::{Quiet, RdpgConfig, TrainConfig, Trainer};
 
 fn cue_run(ddpg: bool, seed: u64) -> (f64, f64) {
     let train = TrainConfig {
         env: "CueMemory-v0".into(),
         total_steps: 6_000,
-        warmup_steps: 600,
-        updates_per_step: 0.5,
-        replay_capacity: 20_000,
-        exploration: ExplorationConfig::Gaussian { sigma: 0.3 },
         eval_every: 0,
         eval_episodes: 100,
         seed,
         ..TrainConfig::default()
+    };
+    let off = OffPolicyConfig {
+        warmup_steps: 600,
+        updates_per_step: 0.5,
+        replay_capacity: 20_000,
+        exploration: ExplorationConfig::Gaussian { sigma: 0.3 },
+        ..OffPolicyConfig::default()
     };
     let rdpg = RdpgConfig {
         trunk: Trunk::Mlp { hidden: vec![32] },
@@ -38,7 +41,7 @@ fn cue_run(ddpg: bool, seed: u64) -> (f64, f64) {
         ..RdpgConfig::default()
     };
     let agent = if ddpg { rdpg.ddpg() } else { rdpg };
-    let mut t = Trainer::new(train, agent).unwrap();
+    let mut t = OffPolicyTrainer::new(train, off, agent).unwrap();
     let before = t.evaluate().unwrap().mean_return;
     t.run(u64::MAX, &mut Quiet).unwrap();
     let after = t.evaluate().unwrap();

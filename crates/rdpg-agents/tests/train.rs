@@ -2,8 +2,10 @@
 
 use std::path::{Path, PathBuf};
 
-use rdpg_agents::train::{ExplorationConfig, ParamNoiseSpec, Quiet, TrainConfig, Trainer};
-use rdpg_agents::{memory_task_config, AgentError, RdpgConfig};
+use rdpg_agents::rdpg::{
+    memory_task_config, ExplorationConfig, OffPolicyConfig, OffPolicyTrainer, ParamNoiseSpec,
+};
+use rdpg_agents::{AgentError, Quiet, RdpgConfig, TrainConfig, Trainer};
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("rdpg-train-test-{}-{name}", std::process::id()));
@@ -11,31 +13,34 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
-fn small() -> (TrainConfig, RdpgConfig) {
+fn small() -> (TrainConfig, OffPolicyConfig, RdpgConfig) {
     let train = TrainConfig {
         env: "PendulumNoVel-v1".into(),
         total_steps: 700,
-        warmup_steps: 250,
-        updates_per_step: 0.25,
         num_envs: 2,
         workers: 2,
-        replay_capacity: 5_000,
-        exploration: ExplorationConfig::Ou {
-            theta: 0.15,
-            sigma: 0.3,
-        },
         eval_every: 0,
         eval_episodes: 1,
         seed: 11,
         ..TrainConfig::default()
     };
+    let off = OffPolicyConfig {
+        warmup_steps: 250,
+        updates_per_step: 0.25,
+        replay_capacity: 5_000,
+        exploration: ExplorationConfig::Ou {
+            theta: 0.15,
+            sigma: 0.3,
+        },
+        ..OffPolicyConfig::default()
+    };
     let mut agent = memory_task_config(false);
     agent.actor_hidden = 16;
     agent.critic_hidden = 16;
-    agent.trunk = rdpg_agents::Trunk::Mlp { hidden: vec![16] };
+    agent.trunk = rdpg_agents::rdpg::Trunk::Mlp { hidden: vec![16] };
     agent.batch_size = 8;
     agent.num_threads = Some(1);
-    (train, agent)
+    (train, off, agent)
 }
 
 fn bytes(dir: &Path, file: &str) -> Vec<u8> {
@@ -44,37 +49,42 @@ fn bytes(dir: &Path, file: &str) -> Vec<u8> {
 
 #[test]
 fn half_save_load_half_equals_one_go() {
-    let (train, agent) = small();
-    resume_is_identical(train, agent, "plain");
+    let (train, off, agent) = small();
+    resume_is_identical(train, off, agent, "plain");
 }
 
 #[test]
 fn half_save_load_half_equals_one_go_with_parameter_noise() {
-    let (mut train, agent) = small();
-    train.param_noise = Some(ParamNoiseSpec {
+    let (train, mut off, agent) = small();
+    off.param_noise = Some(ParamNoiseSpec {
         every_steps: 60,
         ..ParamNoiseSpec::default()
     });
-    let sigma = resume_is_identical(train, agent, "param");
+    let sigma = resume_is_identical(train, off, agent, "param");
     assert!(sigma.is_some_and(|s| s != ParamNoiseSpec::default().initial_stddev));
 }
 
 /// Runs 700 steps in one go and 333 + save + load + the rest; asserts identical weights,
 /// optimiser and replay, and returns the parameter-noise σ reached.
-fn resume_is_identical(train: TrainConfig, agent: RdpgConfig, tag: &str) -> Option<f64> {
+fn resume_is_identical(
+    train: TrainConfig,
+    off: OffPolicyConfig,
+    agent: RdpgConfig,
+    tag: &str,
+) -> Option<f64> {
     let tmp = |name: &str| tmp(&format!("{tag}-{name}"));
-    let mut one = Trainer::new(train.clone(), agent.clone()).unwrap();
+    let mut one = OffPolicyTrainer::new(train.clone(), off.clone(), agent.clone()).unwrap();
     one.run(700, &mut Quiet).unwrap();
     let d1 = tmp("one");
     one.save(&d1).unwrap();
 
-    let mut first = Trainer::new(train, agent).unwrap();
+    let mut first = OffPolicyTrainer::new(train, off, agent).unwrap();
     // 333 is not a multiple of anything: episodes are in progress in both envs.
     first.run(333, &mut Quiet).unwrap();
     let mid = tmp("mid");
     first.save(&mid).unwrap();
     drop(first);
-    let mut second = Trainer::load(&mid).unwrap();
+    let mut second = OffPolicyTrainer::load(&mid).unwrap();
     assert_eq!(second.steps(), 334);
     second.run(700, &mut Quiet).unwrap();
     let d2 = tmp("two");
@@ -106,16 +116,16 @@ fn resume_is_identical(train: TrainConfig, agent: RdpgConfig, tag: &str) -> Opti
 
 #[test]
 fn corrupt_checkpoints_get_clear_errors() {
-    let (mut train, agent) = small();
+    let (mut train, off, agent) = small();
     train.total_steps = 300;
-    let mut t = Trainer::new(train, agent).unwrap();
+    let mut t = OffPolicyTrainer::new(train, off, agent).unwrap();
     t.run(300, &mut Quiet).unwrap();
     let d = tmp("corrupt");
     t.save(&d).unwrap();
     let replay = d.join("replay.bin");
     let full = std::fs::read(&replay).unwrap();
     std::fs::write(&replay, &full[..full.len() / 2]).unwrap();
-    let err = Trainer::load(&d)
+    let err = OffPolicyTrainer::load(&d)
         .err()
         .expect("a truncated replay must not load")
         .to_string();
@@ -125,20 +135,21 @@ fn corrupt_checkpoints_get_clear_errors() {
     );
     std::fs::remove_file(d.join("loop.bin")).unwrap();
     std::fs::write(&replay, &full).unwrap();
-    let err = Trainer::load(&d).err().unwrap().to_string();
+    let err = OffPolicyTrainer::load(&d).err().unwrap().to_string();
     assert!(err.contains("loop.bin"), "{err}");
-    assert!(Trainer::load(&tmp("missing")).is_err());
+    assert!(OffPolicyTrainer::load(&tmp("missing")).is_err());
 }
 
 #[test]
 fn invalid_train_configs_name_the_field() {
-    let (train, agent) = small();
-    let cases: Vec<(TrainConfig, &str)> = vec![
+    let (train, off, agent) = small();
+    let cases: Vec<(TrainConfig, OffPolicyConfig, &str)> = vec![
         (
             TrainConfig {
                 env: "Nope-v0".into(),
                 ..train.clone()
             },
+            off.clone(),
             "train.env",
         ),
         (
@@ -146,35 +157,39 @@ fn invalid_train_configs_name_the_field() {
                 num_envs: 0,
                 ..train.clone()
             },
+            off.clone(),
             "train.num_envs",
         ),
         (
-            TrainConfig {
+            train.clone(),
+            OffPolicyConfig {
                 updates_per_step: f64::NAN,
-                ..train.clone()
+                ..off.clone()
             },
-            "train.updates_per_step",
+            "off_policy.updates_per_step",
         ),
         (
-            TrainConfig {
+            train.clone(),
+            OffPolicyConfig {
                 exploration: ExplorationConfig::Gaussian { sigma: -1.0 },
-                ..train.clone()
+                ..off.clone()
             },
-            "train.exploration",
+            "off_policy.exploration",
         ),
         (
-            TrainConfig {
+            train.clone(),
+            OffPolicyConfig {
                 param_noise: Some(ParamNoiseSpec {
                     adoption_coefficient: 0.9,
                     ..ParamNoiseSpec::default()
                 }),
-                ..train.clone()
+                ..off.clone()
             },
-            "train.param_noise",
+            "off_policy.param_noise",
         ),
     ];
-    for (cfg, field) in cases {
-        match Trainer::new(cfg, agent.clone()) {
+    for (cfg, off, field) in cases {
+        match OffPolicyTrainer::new(cfg, off, agent.clone()) {
             Err(AgentError::Config { field: f, .. }) => assert_eq!(f, field),
             Err(e) => panic!("{field}: unexpected error {e}"),
             Ok(_) => panic!("{field}: accepted"),
@@ -185,17 +200,17 @@ fn invalid_train_configs_name_the_field() {
         gamma: 1.5,
         ..agent
     };
-    assert!(Trainer::new(train, bad_agent).is_err());
+    assert!(OffPolicyTrainer::new(train, off, bad_agent).is_err());
 }
 
 /// Teacher files: recorded, loaded into the replay under the injected cap, sampled, checked
 /// against the run's environment, and rejected clearly when corrupt.
 #[test]
 fn experience_injection_loads_teachers_under_the_cap() {
-    use rdpg_agents::inject::{record, InjectionConfig, TeacherFile};
-    let (mut train, agent) = small();
-    let mut teacher_agent = rdpg_agents::RdpgAgent::new(agent.clone(), 2, 1, 5).unwrap();
-    let mut policy = rdpg_agents::train::RdpgPolicy::new(&mut teacher_agent);
+    use rdpg_agents::rdpg::inject::{record, InjectionConfig, TeacherFile};
+    let (train, mut off, agent) = small();
+    let teacher_agent = rdpg_agents::RdpgAgent::new(agent.clone(), 2, 1, 5).unwrap();
+    let mut policy = rdpg_agents::rdpg::RdpgPolicy::new(&teacher_agent);
     let t = record(&mut policy, &train, 12, 77, 0.3, "test").unwrap();
     assert_eq!(t.episodes.len(), 12);
     assert!(t
@@ -208,13 +223,13 @@ fn experience_injection_loads_teachers_under_the_cap() {
     assert_eq!(TeacherFile::load(&path).unwrap(), t);
 
     // Capacity 5000 with a 0.3 cap: at most 1500 injected transitions, i.e. 7 episodes of 200.
-    train.injection = Some(InjectionConfig {
+    off.injection = Some(InjectionConfig {
         teachers: vec![path.clone()],
         initial_share: 0.5,
         anneal_steps: 500,
         max_fraction: 0.3,
     });
-    let mut tr = Trainer::new(train.clone(), agent.clone()).unwrap();
+    let mut tr = OffPolicyTrainer::new(train.clone(), off.clone(), agent.clone()).unwrap();
     assert_eq!(tr.replay().num_injected_episodes(), 7);
     assert_eq!(tr.replay().injected_transitions(), 1400);
     tr.run(700, &mut Quiet).unwrap();
@@ -224,9 +239,9 @@ fn experience_injection_loads_teachers_under_the_cap() {
     // A teacher of another environment or reward is refused, naming the key.
     let mut other = train.clone();
     other.env = "Pendulum-v1".into();
-    match Trainer::new(other, agent.clone()) {
+    match OffPolicyTrainer::new(other, off.clone(), agent.clone()) {
         Err(AgentError::Config { field, reason }) => {
-            assert_eq!(field, "train.injection");
+            assert_eq!(field, "off_policy.injection");
             assert!(reason.contains("PendulumNoVel-v1"), "{reason}");
         }
         Err(e) => panic!("unexpected error {e}"),
@@ -234,9 +249,74 @@ fn experience_injection_loads_teachers_under_the_cap() {
     }
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
-    match Trainer::new(train, agent) {
+    match OffPolicyTrainer::new(train, off, agent) {
         Err(AgentError::Checkpoint(m)) => assert!(m.contains("truncated"), "{m}"),
         Err(e) => panic!("unexpected error {e}"),
         Ok(_) => panic!("a truncated teacher file was accepted"),
     }
+}
+
+/// A trainer checkpoint of the layout before the re-cut (format 1: `train.json` and
+/// `loop.bin`, no `checkpoint.json`) is refused with a message naming both formats, by the
+/// algorithm-agnostic loader and by each trainer; a header of another trainer is refused too.
+#[test]
+fn checkpoints_of_another_format_or_trainer_are_refused_naming_them() {
+    let d = tmp("format1");
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("train.json"), "{}").unwrap();
+    std::fs::write(d.join("loop.bin"), [0u8; 8]).unwrap();
+    for err in [
+        rdpg_agents::load_trainer(&d).err().unwrap().to_string(),
+        OffPolicyTrainer::load(&d).err().unwrap().to_string(),
+        rdpg_agents::PpoTrainer::load(&d).err().unwrap().to_string(),
+    ] {
+        assert!(
+            err.contains("format 1") && err.contains("format 2"),
+            "{err}"
+        );
+    }
+    std::fs::write(
+        d.join("checkpoint.json"),
+        r#"{"format": 2, "trainer": "ppo"}"#,
+    )
+    .unwrap();
+    let err = OffPolicyTrainer::load(&d).err().unwrap().to_string();
+    assert!(err.contains("Ppo") && err.contains("OffPolicy"), "{err}");
+    std::fs::write(
+        d.join("checkpoint.json"),
+        r#"{"format": 3, "trainer": "off_policy"}"#,
+    )
+    .unwrap();
+    let err = rdpg_agents::load_trainer(&d).err().unwrap().to_string();
+    assert!(err.contains("format 3"), "{err}");
+}
+
+/// The algorithm-agnostic surface: `new_trainer` and `load_trainer` give a `Box<dyn Trainer>`
+/// that resumes exactly, and `load_policy` evaluates the saved agent like the trainer does.
+#[test]
+fn any_algorithm_through_the_trainer_trait() {
+    let (train, off, agent) = small();
+    let learner = rdpg_agents::Learner::OffPolicy {
+        agent,
+        off_policy: off,
+    };
+    let mut t = rdpg_agents::new_trainer(train.clone(), learner).unwrap();
+    t.run(300, &mut Quiet).unwrap();
+    let d = tmp("dyn");
+    t.save(&d).unwrap();
+    let mut back = rdpg_agents::load_trainer(&d).unwrap();
+    assert_eq!(back.steps(), t.steps());
+    assert_eq!(back.updates(), t.updates());
+    let (e1, e2) = (t.evaluate().unwrap(), back.evaluate().unwrap());
+    assert_eq!(e1, e2);
+    t.save_agent(&d.join("best")).unwrap();
+    let mut policy = rdpg_agents::load_policy(rdpg_agents::Algo::Rdpg, &d.join("best")).unwrap();
+    let e3 = rdpg_agents::common::evaluate_policy(
+        policy.as_mut(),
+        &train,
+        train.eval_episodes,
+        train.eval_seed,
+    )
+    .unwrap();
+    assert_eq!(e3.returns, e1.returns);
 }

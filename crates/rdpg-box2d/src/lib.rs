@@ -9,6 +9,8 @@
 //! Contact events are recorded during [`World::step`] and read with
 //! [`World::contact_events`]; each names the user tags given to the two bodies at creation.
 
+#![warn(missing_docs)]
+
 use std::ffi::c_void;
 use std::ptr::NonNull;
 

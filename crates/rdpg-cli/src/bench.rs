@@ -3,10 +3,32 @@
 use std::time::Instant;
 
 use anyhow::{bail, Result};
-use clap::{Args, Subcommand};
+use clap::{Args, Subcommand, ValueEnum};
 use rdpg_core::rng::NpRng;
 use rdpg_envs::{EnvOptions, VecEnv};
 use serde::Serialize;
+
+/// A tensor device on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DeviceArg {
+    /// The CPU.
+    Cpu,
+    /// The first CUDA device (an error without one).
+    Cuda,
+    /// CUDA when available, else the CPU.
+    Auto,
+}
+
+impl DeviceArg {
+    /// The library's device spec.
+    pub fn spec(self) -> rdpg_agents::DeviceSpec {
+        match self {
+            DeviceArg::Cpu => rdpg_agents::DeviceSpec::Cpu,
+            DeviceArg::Cuda => rdpg_agents::DeviceSpec::Cuda,
+            DeviceArg::Auto => rdpg_agents::DeviceSpec::Auto,
+        }
+    }
+}
 
 /// What to benchmark.
 #[derive(Debug, Subcommand)]
@@ -16,7 +38,7 @@ pub enum BenchCommand {
     /// Time RDPG updates on synthetic BipedalWalker-shaped batches (the paper's networks).
     Update(UpdateBenchArgs),
     /// Whole-training throughput: acting, stepping, storing and updating with the paper's
-    /// networks (the counterpart of `scripts/pytorch_train_bench.py`).
+    /// networks (the counterpart of `scripts/bench/pytorch_train_bench.py`).
     Train(TrainBenchArgs),
 }
 
@@ -78,20 +100,23 @@ struct TrainBenchLine<'a> {
 }
 
 fn bench_train(a: &TrainBenchArgs) -> Result<()> {
-    use rdpg_agents::train::{ExplorationConfig, Quiet, TrainConfig, Trainer};
-    use rdpg_agents::{DeviceSpec, RdpgConfig};
+    use rdpg_agents::rdpg::{ExplorationConfig, OffPolicyConfig, OffPolicyTrainer};
+    use rdpg_agents::{DeviceSpec, Quiet, RdpgConfig, TrainConfig, Trainer};
     let train = TrainConfig {
         env: a.env.clone(),
         total_steps: a.steps,
-        warmup_steps: a.warmup,
-        updates_per_step: a.ups,
         num_envs: a.envs,
         workers: a.workers,
-        replay_capacity: 1_000_000,
-        exploration: ExplorationConfig::default(),
         eval_every: 0,
         seed: a.seed,
         ..TrainConfig::default()
+    };
+    let off = OffPolicyConfig {
+        warmup_steps: a.warmup,
+        updates_per_step: a.ups,
+        replay_capacity: 1_000_000,
+        exploration: ExplorationConfig::default(),
+        ..OffPolicyConfig::default()
     };
     let agent = RdpgConfig {
         scan_len: a.scan,
@@ -102,7 +127,7 @@ fn bench_train(a: &TrainBenchArgs) -> Result<()> {
         num_threads: Some(a.threads),
         ..RdpgConfig::default()
     };
-    let mut trainer = Trainer::new(train, agent)?;
+    let mut trainer = OffPolicyTrainer::new(train, off, agent)?;
     trainer.agent_mut().set_profiling(true);
     let start = Instant::now();
     let steps = trainer.run(a.steps, &mut Quiet)?;
@@ -153,9 +178,9 @@ pub struct UpdateBenchArgs {
     /// CPU threads for libtorch.
     #[arg(long, default_value_t = 2)]
     threads: usize,
-    /// Device: cpu, cuda or auto.
-    #[arg(long, default_value = "cpu")]
-    device: String,
+    /// Device.
+    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    device: DeviceArg,
 }
 
 #[derive(Serialize)]
@@ -177,16 +202,12 @@ struct UpdateBenchLine {
 }
 
 fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
-    use rdpg_agents::{bench::bench_update_with, DeviceSpec, RdpgConfig};
+    use rdpg_agents::rdpg::bench::bench_update_with;
+    use rdpg_agents::{DeviceSpec, RdpgConfig};
     if a.iters == 0 || a.batch == 0 || a.opt == 0 {
         bail!("--iters, --batch and --opt must be positive");
     }
-    let device = match a.device.as_str() {
-        "cpu" => DeviceSpec::Cpu,
-        "cuda" => DeviceSpec::Cuda,
-        "auto" => DeviceSpec::Auto,
-        other => bail!("--device {other:?}: expected cpu, cuda or auto"),
-    };
+    let device = a.device.spec();
     let cfg = RdpgConfig {
         scan_len: a.scan,
         batch_size: a.batch,

@@ -3,38 +3,37 @@
 //! ```toml
 //! name = "hardcore-rdpg"          # free text, used in reports
 //! algo = "rdpg"                   # rdpg | ddpg | ppo
-//! [train]                         # rdpg_agents::train::TrainConfig
-//! env = "BipedalWalkerHardcore-v3"
+//! [train]                         # rdpg_agents::TrainConfig: env, reward, budget, envs,
+//! env = "BipedalWalkerHardcore-v3"  # evaluation, seeds (every algorithm)
 //! total_steps = 1_000_000
+//! [off_policy]                    # rdpg_agents::OffPolicyConfig (rdpg, ddpg): warm-up,
+//! warmup_steps = 10_000           # replay, exploration, injection
 //! [agent]                         # rdpg_agents::RdpgConfig (rdpg, ddpg)
 //! scan_len = 120
-//! [ppo]                           # rdpg_agents::ppo::PpoConfig (ppo)
+//! [ppo]                           # rdpg_agents::PpoConfig (ppo)
 //! [run]                           # RunConfig: checkpoints
 //! checkpoint_every = 50_000
 //! ```
 //!
-//! Every section has defaults, unknown keys are rejected with their name, and the resolved
-//! experiment (defaults filled in) is what a run directory stores as `config.toml`.
+//! Every section has defaults, unknown keys are rejected with their name, a section that does
+//! not apply to the algorithm is refused, and the resolved experiment (defaults filled in, only
+//! the algorithm's own sections) is what a run directory stores as `config.toml`.
 
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use rdpg_agents::ppo::PpoConfig;
-use rdpg_agents::train::TrainConfig;
-use rdpg_agents::RdpgConfig;
+use rdpg_agents::{Algo, Learner, OffPolicyConfig, PpoConfig, RdpgConfig, TrainConfig};
 use serde::{Deserialize, Serialize};
 
-/// The learning algorithm of an experiment.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Algo {
-    /// Recurrent deterministic policy gradient (`agent.recurrent = true`).
-    Rdpg,
-    /// DDPG: the same learner with feed-forward networks (`agent.recurrent = false`).
-    Ddpg,
-    /// PPO with an adaptive KL penalty (feed-forward, GAE), configured by `[ppo]`.
-    Ppo,
-}
+/// Keys that were in `[train]` before the off-policy settings got their own section.
+const MOVED_TO_OFF_POLICY: [&str; 6] = [
+    "warmup_steps",
+    "updates_per_step",
+    "replay_capacity",
+    "exploration",
+    "param_noise",
+    "injection",
+];
 
 /// Run-directory settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -62,15 +61,18 @@ pub struct Experiment {
     pub name: String,
     /// Learning algorithm.
     pub algo: Algo,
-    /// The training loop: environment, budget, exploration, evaluation, seed.
+    /// The run: environment, reward, budget, environments, evaluation, seed.
     #[serde(default)]
     pub train: TrainConfig,
+    /// The off-policy loop (`rdpg`, `ddpg`): warm-up, replay, exploration, injection.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub off_policy: Option<OffPolicyConfig>,
     /// The off-policy learner's hyper-parameters (`rdpg`, `ddpg`).
-    #[serde(default)]
-    pub agent: RdpgConfig,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub agent: Option<RdpgConfig>,
     /// PPO's hyper-parameters (`ppo`).
-    #[serde(default)]
-    pub ppo: PpoConfig,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ppo: Option<PpoConfig>,
     /// Checkpointing.
     #[serde(default)]
     pub run: RunConfig,
@@ -87,6 +89,16 @@ impl Experiment {
         for o in overrides {
             set_key(&mut value, o)?;
         }
+        if let Some(toml::Value::Table(train)) = value.get("train") {
+            if let Some(key) = MOVED_TO_OFF_POLICY.iter().find(|k| train.contains_key(**k)) {
+                bail!(
+                    "{}: train.{key} is now off_policy.{key}: the off-policy settings (warm-up, \
+                     update rate, replay, exploration, injection) have their own [off_policy] \
+                     section since rdpg 0.2",
+                    path.display()
+                );
+            }
+        }
         let mut exp: Experiment = value
             .try_into()
             .with_context(|| format!("invalid experiment {}", path.display()))?;
@@ -96,20 +108,63 @@ impl Experiment {
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
         }
+        exp.resolve()?;
         exp.validate()?;
         Ok(exp)
+    }
+
+    /// Fills in the algorithm's own sections with their defaults; a section of another
+    /// algorithm is an error naming it.
+    fn resolve(&mut self) -> Result<()> {
+        let algo = self.algo.as_str();
+        if self.algo == Algo::Ppo {
+            for (given, key) in [
+                (self.agent.is_some(), "agent"),
+                (self.off_policy.is_some(), "off_policy"),
+            ] {
+                if given {
+                    bail!("[{key}] does not apply to algo = \"{algo}\" (on-policy: use [ppo])");
+                }
+            }
+            self.ppo.get_or_insert_with(PpoConfig::default);
+        } else {
+            if self.ppo.is_some() {
+                bail!("[ppo] does not apply to algo = \"{algo}\" (use [agent] and [off_policy])");
+            }
+            self.agent.get_or_insert_with(RdpgConfig::default);
+            self.off_policy.get_or_insert_with(OffPolicyConfig::default);
+        }
+        Ok(())
     }
 
     /// Checks the sections and their consistency; errors name the key.
     pub fn validate(&self) -> Result<()> {
         self.train.validate()?;
-        match (self.algo, self.agent.recurrent) {
-            (Algo::Ppo, _) => return Ok(self.ppo.validate()?),
-            (Algo::Ddpg, true) => bail!("algo = \"ddpg\" needs agent.recurrent = false"),
-            (Algo::Rdpg, false) => bail!("algo = \"rdpg\" needs agent.recurrent = true"),
-            _ => {}
+        if let Some(ppo) = &self.ppo {
+            ppo.validate()?;
         }
-        Ok(self.agent.validate()?)
+        if let Some(off) = &self.off_policy {
+            off.validate()?;
+        }
+        if let Some(agent) = &self.agent {
+            match (self.algo, agent.recurrent) {
+                (Algo::Ddpg, true) => bail!("algo = \"ddpg\" needs agent.recurrent = false"),
+                (Algo::Rdpg, false) => bail!("algo = \"rdpg\" needs agent.recurrent = true"),
+                _ => agent.validate()?,
+            }
+        }
+        Ok(())
+    }
+
+    /// The learner of this (resolved) experiment, for `rdpg_agents::new_trainer`.
+    pub fn learner(&self) -> Learner {
+        match self.algo {
+            Algo::Ppo => Learner::Ppo(self.ppo.clone().unwrap_or_default()),
+            Algo::Rdpg | Algo::Ddpg => Learner::OffPolicy {
+                agent: self.agent.clone().unwrap_or_default(),
+                off_policy: self.off_policy.clone().unwrap_or_default(),
+            },
+        }
     }
 
     /// The resolved experiment as TOML (every default written out).
@@ -169,11 +224,11 @@ mod tests {
                 "agent.scan_len=7",
                 "train.seed=3",
                 "name=x",
-                "train.exploration={kind=\"none\"}",
+                "off_policy.exploration={kind=\"none\"}",
             ],
         )
         .unwrap();
-        assert_eq!(e.agent.scan_len, 7);
+        assert_eq!(e.agent.as_ref().unwrap().scan_len, 7);
         assert_eq!(e.train.seed, 3);
         assert_eq!(e.name, "x");
         let back: Experiment = toml::from_str(&e.to_toml().unwrap()).unwrap();
@@ -192,5 +247,26 @@ mod tests {
         assert!(err(base, &["agent.recurrent=false"]).contains("recurrent"));
         assert!(err("algo = \"sac\"\n", &[]).contains("sac"));
         assert!(err(base, &["novalue"]).contains("key=value"));
+        // Sections of another algorithm are refused, and so are keys from before the split.
+        let ppo = "algo = \"ppo\"\n";
+        assert!(err(ppo, &["off_policy.warmup_steps=3"]).contains("[off_policy]"));
+        assert!(err(ppo, &["agent.scan_len=3"]).contains("[agent]"));
+        assert!(err(base, &["ppo.epochs=3"]).contains("[ppo]"));
+        assert!(err(base, &["train.warmup_steps=3"]).contains("off_policy.warmup_steps"));
+        assert!(err(base, &["off_policy.replay_capacity=0"]).contains("replay_capacity"));
+    }
+
+    #[test]
+    fn resolved_experiments_hold_only_their_algorithms_sections() {
+        let ppo = parse("algo = \"ppo\"\n", &[]).unwrap();
+        let text = ppo.to_toml().unwrap();
+        assert!(
+            text.contains("[ppo]") && !text.contains("[agent]") && !text.contains("[off_policy]")
+        );
+        let rdpg = parse("algo = \"rdpg\"\n", &[]).unwrap();
+        let text = rdpg.to_toml().unwrap();
+        assert!(
+            text.contains("[agent]") && text.contains("[off_policy]") && !text.contains("[ppo]")
+        );
     }
 }

@@ -10,6 +10,7 @@ mod experiment;
 mod render;
 mod report;
 mod rollout;
+mod rundir;
 mod train;
 
 use anyhow::Result;

@@ -4,10 +4,12 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use rdpg_agents::train::to_env_action;
+use rdpg_agents::common::to_env_action;
 use rdpg_core::rng::NpRng;
 use rdpg_envs::Renderable;
 use rdpg_render::{downscale, rasterize, save_png, GifWriter};
+
+use crate::rundir::{RunDir, Which};
 
 /// Which actions drive the rendered episode.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -27,9 +29,9 @@ pub struct RenderArgs {
     /// Drive the episode with the trained agent of this run directory (deterministic).
     #[arg(long, conflicts_with = "policy")]
     run: Option<PathBuf>,
-    /// With `--run`: `best` or `latest` agent.
-    #[arg(long, default_value = "best", requires = "run")]
-    checkpoint: String,
+    /// With `--run`: which agent of the run.
+    #[arg(long, value_enum, default_value_t = Which::Best, requires = "run")]
+    checkpoint: Which,
     /// Seed of the episode.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -63,7 +65,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         max_steps: args.max_steps,
     };
     let (env_id, summary) = if let Some(run) = &args.run {
-        let (exp, mut policy) = crate::train::load_run_policy(run, &args.checkpoint)?;
+        let (exp, mut policy) = RunDir::new(run).policy(args.checkpoint)?;
         if args.env.as_ref().is_some_and(|e| *e != exp.train.env) {
             bail!(
                 "--env {:?} differs from the run's environment {:?}",

@@ -1,6 +1,5 @@
 //! `rdpg plot` and `rdpg compare`: learning curves and a Table-I-shaped comparison of runs.
 
-use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -9,7 +8,7 @@ use clap::Args;
 use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
 use rdpg_render::{rasterize, save_png};
 
-use crate::train::{Metric, Summary};
+use crate::rundir::{Metric, MovingAverage, RunDir, Summary};
 
 /// Arguments of `rdpg plot`.
 #[derive(Debug, Args)]
@@ -47,17 +46,10 @@ struct Run {
 }
 
 fn read_run(dir: &Path) -> Result<Run> {
-    let summary: Summary = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("summary.json"))
-            .with_context(|| format!("{} is not a finished run directory", dir.display()))?,
-    )
-    .with_context(|| format!("{}: bad summary.json", dir.display()))?;
-    let text = std::fs::read_to_string(dir.join("metrics.jsonl"))
-        .with_context(|| format!("reading {}", dir.join("metrics.jsonl").display()))?;
+    let run = RunDir::new(dir);
+    let summary = run.read_summary()?;
     let (mut episodes, mut evals) = (Vec::new(), Vec::new());
-    for (i, line) in text.lines().enumerate() {
-        let m: Metric = serde_json::from_str(line)
-            .with_context(|| format!("{}/metrics.jsonl:{}", dir.display(), i + 1))?;
+    for m in run.read_metrics()? {
         match m {
             Metric::Episode { step, ret, .. } => episodes.push((step, ret)),
             Metric::Eval {
@@ -80,19 +72,15 @@ fn read_run(dir: &Path) -> Result<Run> {
     })
 }
 
-/// Moving average over the last (up to) 100 episodes, at every episode.
+/// The [`MovingAverage`] of the training returns at every episode (over the episodes so far
+/// before the window fills).
 fn moving_average(episodes: &[(u64, f64)]) -> Vec<(f64, f64)> {
-    let mut window = VecDeque::with_capacity(100);
-    let mut sum = 0.0;
+    let mut ma = MovingAverage::default();
     episodes
         .iter()
         .map(|&(step, r)| {
-            window.push_back(r);
-            sum += r;
-            if window.len() > 100 {
-                sum -= window.pop_front().unwrap_or(0.0);
-            }
-            (step as f64, sum / window.len() as f64)
+            ma.push(r);
+            (step as f64, ma.mean().unwrap_or(r))
         })
         .collect()
 }

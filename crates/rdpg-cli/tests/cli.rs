@@ -214,7 +214,7 @@ fn json_file(path: &std::path::Path) -> Value {
 fn train_writes_a_run_directory_resumes_and_evals() {
     let cfg = configs_dir().join("cue-rdpg.toml");
     let sets = [
-        "train.warmup_steps=200",
+        "off_policy.warmup_steps=200",
         "train.eval_every=200",
         "train.eval_episodes=5",
         "run.checkpoint_every=300",
@@ -324,8 +324,10 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             "--noise",
             "0.1",
             "--checkpoint",
+            "latest",
+            "--run",
         ])
-        .arg(one.join("checkpoints/latest"))
+        .arg(&one)
         .arg("--out")
         .arg(&teacher));
     let rec: Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -336,7 +338,7 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     let student = tmp("run-student");
     let _ = std::fs::remove_dir_all(&student);
     let injection = format!(
-        "train.injection={{teachers=[{:?}],initial_share=0.5,anneal_steps=300}}",
+        "off_policy.injection={{teachers=[{:?}],initial_share=0.5,anneal_steps=300}}",
         teacher.display().to_string()
     );
     ok(rdpg()
@@ -344,7 +346,7 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         .arg(&cfg)
         .arg("--out")
         .arg(&student)
-        .args(["--set", "train.warmup_steps=200", "--set", &injection]));
+        .args(["--set", "off_policy.warmup_steps=200", "--set", &injection]));
 
     // Reports: the comparison table names rewards and metrics, the plots are PNGs, and the
     // trained agent renders.
@@ -406,8 +408,8 @@ fn train_rejects_bad_configs_naming_the_key() {
         ("agent.opt_len=0", "opt_len"),
         ("algo=ppo2", "ppo2"),
         (
-            "train.exploration={kind=\"ou\",theta=-1,sigma=0.1}",
-            "train.exploration",
+            "off_policy.exploration={kind=\"ou\",theta=-1,sigma=0.1}",
+            "off_policy.exploration",
         ),
     ] {
         let out = rdpg()
@@ -449,27 +451,34 @@ fn every_config_trains() {
             .arg(&out_dir)
             .args([
                 "--set",
-                "train.warmup_steps=250",
-                "--set",
-                "train.updates_per_step=0.1",
-                "--set",
                 "train.eval_every=0",
                 "--set",
                 "train.eval_episodes=1",
             ]);
+        let on_policy = std::fs::read_to_string(&cfg)
+            .unwrap()
+            .contains("algo = \"ppo\"");
+        if !on_policy {
+            cmd.args([
+                "--set",
+                "off_policy.warmup_steps=250",
+                "--set",
+                "off_policy.updates_per_step=0.1",
+            ]);
+        }
         if let Some(base) = stem.strip_suffix("-injection") {
             // The teacher: a few episodes of the base experiment's run (trained just before,
             // names sort base first).
             let teacher = tmp(&format!("teacher-{stem}.bin"));
             ok(rdpg()
-                .args(["record", "--episodes", "2", "--checkpoint"])
+                .args(["record", "--episodes", "2", "--run"])
                 .arg(tmp(&format!("cfg-{base}")))
                 .arg("--out")
                 .arg(&teacher));
             cmd.args([
                 "--set",
                 &format!(
-                    "train.injection.teachers=[{:?}]",
+                    "off_policy.injection.teachers=[{:?}]",
                     teacher.display().to_string()
                 ),
             ]);

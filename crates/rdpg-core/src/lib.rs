@@ -6,6 +6,8 @@
 //! This crate deliberately knows nothing about tensors or physics: it is the vocabulary the
 //! environments (`rdpg-envs`) and the learners (`rdpg-agents`) share.
 
+#![warn(missing_docs)]
+
 pub mod batch;
 pub mod env;
 pub mod error;

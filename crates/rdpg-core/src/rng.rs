@@ -19,7 +19,7 @@
 //! * **normal variates**: the 256-layer ziggurat of Marsaglia and Tsang, in the variant numpy
 //!   uses (one 64-bit draw per try: 8 bits layer, 1 bit sign, 52 bits magnitude; an
 //!   exponential tail beyond `r`). Its tables were recovered from numpy's behaviour by
-//!   `scripts/numpy_rng_reference.py` and are embedded below.
+//!   `scripts/reference/numpy_rng_reference.py` and are embedded below.
 //!
 //! `tests/fixtures/numpy_rng.json` (written by the same script) holds numpy's outputs; the unit
 //! tests compare against it bit for bit.
@@ -366,7 +366,7 @@ impl NpRng {
     }
 }
 
-// BEGIN GENERATED ZIGGURAT TABLES (scripts/numpy_rng_reference.py --rust-tables)
+// BEGIN GENERATED ZIGGURAT TABLES (scripts/reference/numpy_rng_reference.py --rust-tables)
 /// Right edge of the base layer of the 256-layer normal ziggurat.
 const ZIG_R: f64 = 3.654152885361009;
 /// `1 / ZIG_R`.

@@ -8,6 +8,8 @@
 //! - [`vector`]: N environments stepped on worker threads with auto-reset.
 //! - [`make`]: builds a registered environment by id, with its time limit.
 
+#![warn(missing_docs)]
+
 pub mod bipedal;
 pub mod cue;
 pub mod pendulum;

@@ -1,5 +1,5 @@
 //! Trajectory parity with Gymnasium: replays the traces in `tests/fixtures/traces` (recorded
-//! from gymnasium 1.4.0 by `scripts/gymnasium_traces.py`) and compares every observation,
+//! from gymnasium 1.4.0 by `scripts/reference/gymnasium_traces.py`) and compares every observation,
 //! reward, `terminated` and `truncated`.
 //!
 //! With pybox2d's Box2D 2.3.0 (the default build) the comparison is exact (`==`) over whole

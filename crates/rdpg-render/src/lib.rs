@@ -1,9 +1,11 @@
 //! Pure-Rust 2-D rendering: a [`Scene`] of flat-coloured polygons and lines in pixel
 //! coordinates, rasterised to RGB frames, saved as PNG or animated GIF.
 //!
-//! [`rasterize`] turns a [`Scene`] into a [`Frame`] (anti-aliased, via `tiny-skia`);
-//! [`save_png`] writes one frame, [`GifWriter`] an endlessly looping animation, and
-//! [`downscale`] shrinks frames for smaller files. Everything is pure Rust.
+//! The scene format is always there; everything that draws or encodes is behind the default
+//! `image` feature, so crates that only describe scenes (the environments) build without it:
+//! `rasterize` turns a [`Scene`] into a `Frame` (anti-aliased, via `tiny-skia`); `save_png`
+//! writes one frame, `GifWriter` an endlessly looping animation, `downscale` shrinks frames
+//! for smaller files, and `plot` draws line charts. Everything is pure Rust.
 
 #![warn(missing_docs)]
 
@@ -48,15 +50,26 @@ pub struct Scene {
     pub shapes: Vec<Shape>,
 }
 
+#[cfg(feature = "image")]
 mod error;
+#[cfg(feature = "image")]
 mod frame;
+#[cfg(feature = "image")]
 mod gif_writer;
+#[cfg(feature = "image")]
 pub mod plot;
+#[cfg(feature = "image")]
 mod png_io;
+#[cfg(feature = "image")]
 mod raster;
 
+#[cfg(feature = "image")]
 pub use error::RenderError;
+#[cfg(feature = "image")]
 pub use frame::{downscale, Frame};
+#[cfg(feature = "image")]
 pub use gif_writer::{GifWriter, MIN_DELAY_CS};
+#[cfg(feature = "image")]
 pub use png_io::save_png;
+#[cfg(feature = "image")]
 pub use raster::rasterize;

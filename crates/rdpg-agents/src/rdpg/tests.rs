@@ -1,9 +1,17 @@
 //! Tests of the update's pieces (targets, weights, scan, tail bootstrap, gradients) and of
 //! the agent (determinism, checkpoints, acting).
 
-use super::*;
-use crate::bench::synthetic_batch;
-use crate::config::Trunk;
+use rdpg_core::rng::NpRng;
+use rdpg_core::SequenceBatch;
+use tch::nn::VarStore;
+use tch::{Device, Kind, Tensor};
+
+use super::agent::RdpgAgent;
+use super::bench::synthetic_batch;
+use super::config::{RdpgConfig, ScanMethod, Trunk};
+use super::lstm::RecState;
+use super::update::{actor_loss, critic_loss_from, td_targets, ActorInput};
+use crate::common::tensor::{sorted_vars, tensor_to_vec64 as to_vec64, DeviceSpec};
 
 const OBS: usize = 13; // 3 body sensors + 10 lidar values
 const ACT: usize = 2;
@@ -38,16 +46,6 @@ fn mlp(obs_hidden: usize) -> RdpgConfig {
 fn batch(cfg: &RdpgConfig, n: usize, short: f64, seed: u64) -> SequenceBatch {
     let mut rng = NpRng::from_seed(seed);
     synthetic_batch(n, cfg.scan_len, cfg.opt_len, OBS, ACT, short, &mut rng)
-}
-
-fn to_vec64(t: &Tensor) -> Vec<f64> {
-    let t = t
-        .detach()
-        .to_kind(Kind::Double)
-        .to_device(Device::Cpu)
-        .contiguous()
-        .view([-1]);
-    Vec::<f64>::try_from(&t).unwrap()
 }
 
 fn assert_close(a: &[f64], b: &[f64], tol: f64, what: &str) {
@@ -580,7 +578,7 @@ fn full_cfg() -> RdpgConfig {
         tau: 0.05,
         twin_critic: true,
         grad_clip: Some(1.0),
-        target_noise: Some(crate::config::TargetNoise {
+        target_noise: Some(super::config::TargetNoise {
             std: 0.2,
             clip: 0.5,
         }),
@@ -717,7 +715,7 @@ fn load_rejects_missing_files() {
 #[test]
 fn acting_matches_the_sequence_forward_and_resets() {
     let cfg = tiny();
-    let mut agent = RdpgAgent::new(cfg, OBS, ACT, 2).unwrap();
+    let agent = RdpgAgent::new(cfg, OBS, ACT, 2).unwrap();
     let n_envs = 3;
     let steps = 5;
     let obs: Vec<Vec<f32>> = (0..steps)
@@ -855,26 +853,32 @@ fn check_batch_rejects_inconsistent_batches() {
 }
 
 #[test]
-fn acting_params_swap_in_a_perturbed_actor() {
+fn exploring_params_swap_in_a_perturbed_actor() {
     let mut agent = RdpgAgent::new(tiny(), OBS, ACT, 8).unwrap();
     let obs: Vec<f32> = (0..2 * OBS).map(|i| (i as f32 * 0.21).sin()).collect();
     let mut params = agent.actor_params();
     assert_eq!(params.len(), agent.actor_param_count());
-    let reference = agent.act_unperturbed(&obs, &mut agent.initial_state(2));
+    let reference = agent.act(&obs, &mut agent.initial_state(2));
     // The same parameters act identically.
-    agent.set_acting_params(Some(&params)).unwrap();
-    assert_eq!(agent.act(&obs, &mut agent.initial_state(2)), reference);
+    agent.set_exploring_params(Some(&params)).unwrap();
+    assert_eq!(
+        agent.act_exploring(&obs, &mut agent.initial_state(2)),
+        reference
+    );
     // Perturbed parameters act differently; the trained actor is untouched.
     for p in params.iter_mut() {
         *p += 0.05;
     }
-    agent.set_acting_params(Some(&params)).unwrap();
-    assert_ne!(agent.act(&obs, &mut agent.initial_state(2)), reference);
-    assert_eq!(
-        agent.act_unperturbed(&obs, &mut agent.initial_state(2)),
+    agent.set_exploring_params(Some(&params)).unwrap();
+    assert_ne!(
+        agent.act_exploring(&obs, &mut agent.initial_state(2)),
         reference
     );
-    agent.set_acting_params(None).unwrap();
     assert_eq!(agent.act(&obs, &mut agent.initial_state(2)), reference);
-    assert!(agent.set_acting_params(Some(&params[1..])).is_err());
+    agent.set_exploring_params(None).unwrap();
+    assert_eq!(
+        agent.act_exploring(&obs, &mut agent.initial_state(2)),
+        reference
+    );
+    assert!(agent.set_exploring_params(Some(&params[1..])).is_err());
 }

@@ -80,6 +80,16 @@ pub enum WalkerReward {
     Paper,
 }
 
+impl WalkerReward {
+    /// The name used in configs, summaries and tables (`stock`, `paper`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            WalkerReward::Stock => "stock",
+            WalkerReward::Paper => "paper",
+        }
+    }
+}
+
 /// Configuration of a walker.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct WalkerConfig {

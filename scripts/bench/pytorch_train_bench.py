@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Whole-training throughput of an RDPG loop in Python (Gymnasium + PyTorch), the counterpart
-of `rdpg bench train`: the same env, networks, update (scripts/pytorch_update_bench.py), OU
+of `rdpg bench train`: the same env, networks, update (scripts/bench/pytorch_update_bench.py), OU
 noise, warm-up and updates-per-step ratio, on one environment.
 
 Per env step: the actor (trunk + one LSTM cell step, batch 1, no grad) picks the action, OU
@@ -10,9 +10,9 @@ on full windows of s + l steps sampled uniformly from episodes long enough to ho
 
 Prints one JSON line {"impl": "pytorch", ..., "steps_per_sec": X}.
 Needs torch and gymnasium[box2d] in one environment:
-  .venv/bin/pip install -r scripts/requirements-reference.txt   (torch comes from setup.sh)
+  .venv/bin/pip install -r scripts/setup/requirements_reference.txt   (torch comes from setup.sh)
 
-Usage: python scripts/pytorch_train_bench.py [--env BipedalWalker-v3] [--steps 3000]
+Usage: python scripts/bench/pytorch_train_bench.py [--env BipedalWalker-v3] [--steps 3000]
        [--warmup 500] [--ups 0.05] [--threads 2] [--scan 24] [--batch 64] [--opt 8] [--seed 0]
 """
 

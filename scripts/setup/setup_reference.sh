@@ -2,12 +2,12 @@
 # Create a Python virtual environment with the exact Gymnasium/Box2D/NumPy
 # versions the reference traces were generated with.
 #
-# Usage: scripts/setup_reference.sh [VENV_DIR]     (default: .venv-ref)
+# Usage: scripts/setup/setup_reference.sh [VENV_DIR]     (default: .venv-ref)
 # Env:   PYTHON=python3.11 to choose the interpreter (CPython 3.11 expected).
 #
 # Afterwards:
-#   VENV_DIR/bin/python scripts/gymnasium_traces.py          # regenerate fixtures
-#   VENV_DIR/bin/python scripts/bench_gymnasium.py --env BipedalWalker-v3 --steps 20000
+#   VENV_DIR/bin/python scripts/reference/gymnasium_traces.py          # regenerate fixtures
+#   VENV_DIR/bin/python scripts/bench/bench_gymnasium.py --env BipedalWalker-v3 --steps 20000
 set -euo pipefail
 
 venv="${1:-.venv-ref}"
@@ -27,7 +27,7 @@ fi
 "$venv/bin/python" -m pip install --upgrade pip
 # box2d 2.3.10 ships wheels for CPython 3.11 on common platforms; building it
 # from source needs swig.
-"$venv/bin/python" -m pip install -r "$here/requirements-reference.txt"
+"$venv/bin/python" -m pip install -r "$here/requirements_reference.txt"
 "$venv/bin/python" - <<'PY'
 import Box2D, gymnasium, numpy, platform
 print(f"ok: python {platform.python_version()}, gymnasium {gymnasium.__version__}, "

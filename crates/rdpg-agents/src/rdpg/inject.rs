@@ -12,12 +12,13 @@ use rdpg_core::replay::Episode;
 use rdpg_envs::{EnvOptions, WalkerReward};
 use serde::{Deserialize, Serialize};
 
-use crate::train::{to_env_action, DeterministicPolicy, TrainConfig};
-use crate::{AgentError, Result};
+use crate::common::checkpoint::{read_bin, write_bin};
+use crate::common::{to_env_action, DeterministicPolicy, TrainConfig};
+use crate::error::{AgentError, Result};
 
 const MAGIC: &str = "rdpg-teacher-v1";
 
-/// Injection settings of a training run (`train.injection`).
+/// Injection settings of a training run (`off_policy.injection`).
 ///
 /// A share `initial_share` of the windows of every batch is drawn from the teacher episodes
 /// at the start; the share falls linearly to zero at `anneal_steps` environment steps. The
@@ -52,11 +53,11 @@ impl InjectionConfig {
         self.initial_share * (1.0 - step as f64 / self.anneal_steps as f64)
     }
 
-    /// Checks the fields; errors name `train.injection`.
+    /// Checks the fields; errors name `off_policy.injection`.
     pub fn validate(&self) -> Result<()> {
         let bad = |reason: String| {
             Err(AgentError::Config {
-                field: "train.injection",
+                field: "off_policy.injection",
                 reason,
             })
         };
@@ -102,22 +103,15 @@ pub struct TeacherFile {
 impl TeacherFile {
     /// Writes the file (bincode).
     pub fn save(&self, path: &Path) -> Result<()> {
-        let file = std::fs::File::create(path)?;
-        bincode::serialize_into(std::io::BufWriter::new(file), self)
-            .map_err(|e| AgentError::Checkpoint(format!("{}: {e}", path.display())))
+        write_bin(path, self)
     }
 
     /// Reads a file written by [`TeacherFile::save`].
     pub fn load(path: &Path) -> Result<Self> {
-        let file = std::fs::File::open(path)
-            .map_err(|e| AgentError::Checkpoint(format!("teacher file {}: {e}", path.display())))?;
-        let t: TeacherFile =
-            bincode::deserialize_from(std::io::BufReader::new(file)).map_err(|e| {
-                AgentError::Checkpoint(format!(
-                    "{} is not a teacher file, or is truncated: {e}",
-                    path.display()
-                ))
-            })?;
+        let t: TeacherFile = read_bin(path).map_err(|e| match e {
+            AgentError::Checkpoint(m) => AgentError::Checkpoint(format!("teacher file {m}")),
+            other => other,
+        })?;
         if t.magic != MAGIC {
             return Err(AgentError::Checkpoint(format!(
                 "{}: not a teacher file ({:?})",
@@ -132,7 +126,7 @@ impl TeacherFile {
     pub fn check_fits(&self, cfg: &TrainConfig, path: &Path) -> Result<()> {
         let mismatch = |what: &str, a: String, b: String| {
             Err(AgentError::Config {
-                field: "train.injection",
+                field: "off_policy.injection",
                 reason: format!(
                     "teacher {} was recorded with {what} {a}, the run uses {b}",
                     path.display()
@@ -152,8 +146,8 @@ impl TeacherFile {
         if self.reward != cfg.reward {
             return mismatch(
                 "reward",
-                format!("{:?}", self.reward),
-                format!("{:?}", cfg.reward),
+                self.reward.as_str().into(),
+                cfg.reward.as_str().into(),
             );
         }
         Ok(())
@@ -256,7 +250,7 @@ mod tests {
             assert!(matches!(
                 bad.validate(),
                 Err(AgentError::Config {
-                    field: "train.injection",
+                    field: "off_policy.injection",
                     ..
                 })
             ));

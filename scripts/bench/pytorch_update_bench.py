@@ -16,7 +16,7 @@ action branch), same scans, same losses, same order of operations:
 Full windows (scan_len = s, opt_len = l), synthetic data. Prints one JSON line:
 {"impl": "pytorch", ..., "updates_per_sec": X, "ms": {...phases...}}.
 
-Usage: python scripts/pytorch_update_bench.py [--scan 24] [--batch 64] [--opt 8] [--iters 30]
+Usage: python scripts/bench/pytorch_update_bench.py [--scan 24] [--batch 64] [--opt 8] [--iters 30]
        [--threads 2] [--old-critic] [--device cpu|cuda]
 """
 

@@ -1,5 +1,5 @@
 //! Synthetic BipedalWalker-shaped batches and an update-throughput benchmark (the counterpart
-//! of `scripts/pytorch_update_bench.py`).
+//! of `scripts/bench/pytorch_update_bench.py`).
 
 use std::time::Instant;
 
@@ -7,9 +7,10 @@ use rdpg_core::rng::NpRng;
 use rdpg_core::SequenceBatch;
 use serde::{Deserialize, Serialize};
 
-use crate::config::RdpgConfig;
+use super::agent::RdpgAgent;
+use super::config::RdpgConfig;
+use super::update::PhaseTimes;
 use crate::error::Result;
-use crate::rdpg::{PhaseTimes, RdpgAgent};
 
 /// A random but well-formed batch: `n` windows of `scan + opt` steps, observations of size
 /// `obs_dim` (the last 10 values in `[0, 1]` like lidar ranges, the rest standard normal),
@@ -152,7 +153,7 @@ pub fn bench_update(scan: usize, batch: usize, opt: usize, iters: usize) -> f64 
         batch_size: batch,
         opt_len: opt,
         update_len: opt,
-        device: crate::config::DeviceSpec::Cpu,
+        device: crate::common::DeviceSpec::Cpu,
         num_threads: Some(2),
         ..Default::default()
     };

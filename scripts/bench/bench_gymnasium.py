@@ -25,7 +25,7 @@ strongly on the seed; prefer plain ``--raw-step``.  Printed with ``"impl":
 
 Usage::
 
-    python scripts/bench_gymnasium.py --env BipedalWalker-v3 --steps 20000 --seed 0
+    python scripts/bench/bench_gymnasium.py --env BipedalWalker-v3 --steps 20000 --seed 0
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 # into .deps/box2d-py-2.3.8. These are the sources Gymnasium's physics runs on; the crate
 # rdpg-box2d compiles them (see crates/rdpg-box2d/build.rs). Nothing of them is committed.
 set -euo pipefail
-root="$(cd "$(dirname "$0")/.." && pwd)"
+root="$(cd "$(dirname "$0")/../.." && pwd)"
 dest="$root/.deps"
 dir="$dest/box2d-py-2.3.8"
 if [ -f "$dir/Box2D/Box2D.h" ]; then

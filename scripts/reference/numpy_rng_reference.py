@@ -7,12 +7,12 @@ numpy's public Python API.
 
 Regenerate the test fixture (from the repository root; needs numpy >= 2):
 
-    /work/venvs/ref/bin/python scripts/numpy_rng_reference.py > tests/fixtures/numpy_rng.json
+    /work/venvs/ref/bin/python scripts/reference/numpy_rng_reference.py > tests/fixtures/numpy_rng.json
 
 Regenerate the ziggurat tables embedded in `crates/rdpg-core/src/rng.rs` (rewrites the block
 between the `BEGIN GENERATED ZIGGURAT TABLES` / `END GENERATED ZIGGURAT TABLES` markers):
 
-    /work/venvs/ref/bin/python scripts/numpy_rng_reference.py --rust-tables crates/rdpg-core/src/rng.rs
+    /work/venvs/ref/bin/python scripts/reference/numpy_rng_reference.py --rust-tables crates/rdpg-core/src/rng.rs
 
 The tables are recovered from numpy's *behaviour*: the PCG64 state is set (through
 `bit_generator.state`) so that the next raw 64-bit outputs are chosen words, then
@@ -300,7 +300,7 @@ def rust_tables():
     ki, wi, fi = extract_tables()
     r = wi[255] * 2.0**52
     lines = [
-        "// BEGIN GENERATED ZIGGURAT TABLES (scripts/numpy_rng_reference.py --rust-tables)",
+        "// BEGIN GENERATED ZIGGURAT TABLES (scripts/reference/numpy_rng_reference.py --rust-tables)",
         f"/// Right edge of the base layer of the 256-layer normal ziggurat.",
         f"const ZIG_R: f64 = {r!r};",
         f"/// `1 / ZIG_R`.",

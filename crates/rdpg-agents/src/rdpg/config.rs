@@ -8,6 +8,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::common::tensor::DeviceSpec;
 use crate::error::{AgentError, Result};
 
 /// How observations are embedded before the recurrent core (the "state embedding").
@@ -25,18 +26,6 @@ pub enum Trunk {
         /// Width of each hidden layer; the last one is the embedding size. Must be non-empty.
         hidden: Vec<usize>,
     },
-}
-
-/// Where the tensors live.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DeviceSpec {
-    /// Always the CPU.
-    Cpu,
-    /// The first CUDA device; an error if libtorch sees none.
-    Cuda,
-    /// CUDA when available, else the CPU.
-    Auto,
 }
 
 /// How the no-gradient scan (burn-in) handles windows whose scan is shorter than `s`
@@ -66,7 +55,7 @@ pub struct TargetNoise {
     pub clip: f64,
 }
 
-/// All hyper-parameters of [`crate::RdpgAgent`]. Every field has a default (see
+/// All hyper-parameters of [`RdpgAgent`](super::RdpgAgent). Every field has a default (see
 /// [`RdpgConfig::default`]); a JSON config may give any subset, unknown fields are rejected.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -343,6 +332,32 @@ impl RdpgConfig {
             )));
         }
         Ok(())
+    }
+}
+
+/// The learner configuration of the memory task (PendulumNoVel-v1): a small MLP trunk, LSTM 64
+/// (or, with `ddpg`, the same network with the LSTM replaced by FC and `l = u = 1`, `s = 0`),
+/// target networks with τ = 0.005, batch 64, `l = u = 8`, `s = 16`.
+pub fn memory_task_config(ddpg: bool) -> RdpgConfig {
+    let cfg = RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![64] },
+        actor_hidden: 64,
+        critic_hidden: 64,
+        critic_action_fc: 32,
+        batch_size: 64,
+        opt_len: 8,
+        update_len: 8,
+        scan_len: 16,
+        tau: 0.005,
+        actor_uses_updated_critic: false,
+        scan_method: ScanMethod::MaskedLoop,
+        device: DeviceSpec::Cpu,
+        ..RdpgConfig::default()
+    };
+    if ddpg {
+        cfg.ddpg()
+    } else {
+        cfg
     }
 }
 

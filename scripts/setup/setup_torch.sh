@@ -4,7 +4,7 @@
 # already has torch 2.11.0. PyPI's Linux wheel is the CUDA build (~2.5 GB download); the same
 # binaries then run on CPU-only machines and on GPUs.
 set -euo pipefail
-root="$(cd "$(dirname "$0")/.." && pwd)"
+root="$(cd "$(dirname "$0")/../.." && pwd)"
 venv="${RDPG_VENV:-$root/.venv}"
 want="2.11.0"
 if [ -x "$venv/bin/python3" ] && "$venv/bin/python3" -c "import torch, sys; sys.exit(0 if torch.__version__.split('+')[0] == '$want' else 1)" 2>/dev/null; then

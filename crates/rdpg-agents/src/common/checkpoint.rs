@@ -1,0 +1,172 @@
+//! Checkpoint file I/O shared by every learner and trainer: bincode state files, safetensors
+//! maps, JSON files, and the header that versions a trainer checkpoint.
+//!
+//! A trainer checkpoint is a directory: `checkpoint.json` (this module's [`Header`]: format and
+//! trainer kind), `train.json` (the run's [`TrainConfig`](crate::TrainConfig)),
+//! `collector.bin` (environments, episodes in progress, counters), `loop.bin` (the
+//! algorithm's own loop state) and `agent/` (the agent's networks and optimiser). The agent
+//! directory alone is what `checkpoints/best` holds.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use tch::Tensor;
+
+use crate::error::{AgentError, Result};
+
+/// The trainer checkpoint format this build writes and reads. Format 1 (rdpg 0.1, before the
+/// re-cut of the agents crate) had no `checkpoint.json` and a different `loop.bin`.
+pub const TRAINER_FORMAT: u32 = 2;
+
+/// A checkpoint error naming the file.
+pub fn ckpt_err(path: &Path, e: impl std::fmt::Display) -> AgentError {
+    AgentError::Checkpoint(format!("{}: {e}", path.display()))
+}
+
+/// Writes `value` with bincode.
+pub fn write_bin<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let file = std::fs::File::create(path).map_err(|e| ckpt_err(path, e))?;
+    bincode::serialize_into(std::io::BufWriter::new(file), value).map_err(|e| ckpt_err(path, e))
+}
+
+/// Reads a file written by [`write_bin`]; a missing, truncated or corrupt file is a
+/// checkpoint error naming it.
+pub fn read_bin<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
+    let file = std::fs::File::open(path).map_err(|e| ckpt_err(path, e))?;
+    bincode::deserialize_from(std::io::BufReader::new(file))
+        .map_err(|e| ckpt_err(path, format!("is truncated or corrupt: {e}")))
+}
+
+/// Writes `value` as pretty JSON.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    std::fs::write(path, serde_json::to_string_pretty(value)?).map_err(|e| ckpt_err(path, e))
+}
+
+/// Reads a JSON file; a missing or malformed file is a checkpoint error naming it.
+pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).map_err(|e| ckpt_err(path, e))?;
+    serde_json::from_str(&text).map_err(|e| ckpt_err(path, e))
+}
+
+/// Reads a safetensors file into a map by name; missing or corrupt files name the path.
+pub fn read_tensors(path: &Path) -> Result<HashMap<String, Tensor>> {
+    if !path.is_file() {
+        return Err(ckpt_err(path, "missing"));
+    }
+    Ok(Tensor::read_safetensors(path)
+        .map_err(|e| ckpt_err(path, format!("truncated or corrupt: {e}")))?
+        .into_iter()
+        .collect())
+}
+
+/// Writes named tensors (copied to the CPU) as a safetensors file.
+pub fn write_tensors(path: &Path, tensors: &[(String, Tensor)]) -> Result<()> {
+    let cpu: Vec<(String, Tensor)> = tensors
+        .iter()
+        .map(|(n, t)| {
+            (
+                n.clone(),
+                t.detach().to_device(tch::Device::Cpu).contiguous(),
+            )
+        })
+        .collect();
+    Tensor::write_safetensors(&cpu, path).map_err(|e| ckpt_err(path, e))
+}
+
+/// Which trainer wrote a checkpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrainerKind {
+    /// The off-policy trainer (RDPG, DDPG).
+    OffPolicy,
+    /// The on-policy PPO trainer.
+    Ppo,
+}
+
+/// `checkpoint.json` of a trainer checkpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Header {
+    /// [`TRAINER_FORMAT`] of the build that wrote it.
+    pub format: u32,
+    /// The trainer that wrote it.
+    pub trainer: TrainerKind,
+}
+
+impl Header {
+    /// Writes the header of a checkpoint of `trainer` into `dir`.
+    pub fn write(dir: &Path, trainer: TrainerKind) -> Result<()> {
+        write_json(
+            &dir.join("checkpoint.json"),
+            &Header {
+                format: TRAINER_FORMAT,
+                trainer,
+            },
+        )
+    }
+
+    /// Reads the header of the checkpoint in `dir`. A checkpoint of an earlier format, or of
+    /// another trainer than `expect` (when given), is refused with a message naming both.
+    pub fn read(dir: &Path, expect: Option<TrainerKind>) -> Result<Self> {
+        let path = dir.join("checkpoint.json");
+        if !path.exists() && !dir.join("train.json").exists() {
+            return Err(ckpt_err(
+                dir,
+                "holds no trainer checkpoint (neither checkpoint.json nor train.json)",
+            ));
+        }
+        if !path.exists() {
+            return Err(ckpt_err(
+                dir,
+                format!(
+                    "written by an earlier rdpg (trainer checkpoint format 1); this build reads \
+                     format {TRAINER_FORMAT}. Its agent (`agent/`, and `checkpoints/best`) still \
+                     loads for eval, render and record; to train further, start a new run"
+                ),
+            ));
+        }
+        let h: Header = read_json(&path)?;
+        if h.format != TRAINER_FORMAT {
+            return Err(ckpt_err(
+                &path,
+                format!(
+                    "trainer checkpoint format {}, this build reads format {TRAINER_FORMAT}",
+                    h.format
+                ),
+            ));
+        }
+        if let Some(want) = expect.filter(|&w| w != h.trainer) {
+            return Err(ckpt_err(
+                &path,
+                format!("a {:?} checkpoint, expected {want:?}", h.trainer),
+            ));
+        }
+        Ok(h)
+    }
+}
+
+/// Copies the tensors named `{prefix}{variable name}` from `tensors` into the variables of
+/// `vs` (converted to the variable's kind and device). A missing tensor or a shape mismatch
+/// is a checkpoint error naming the tensor.
+pub fn restore_vars(
+    vs: &tch::nn::VarStore,
+    tensors: &HashMap<String, Tensor>,
+    prefix: &str,
+) -> Result<()> {
+    for (name, mut var) in crate::common::tensor::sorted_vars(vs) {
+        let key = format!("{prefix}{name}");
+        let src = tensors
+            .get(&key)
+            .ok_or_else(|| AgentError::Checkpoint(format!("missing weight `{key}`")))?;
+        if src.size() != var.size() {
+            return Err(AgentError::Checkpoint(format!(
+                "weight `{key}` has shape {:?}, expected {:?}",
+                src.size(),
+                var.size()
+            )));
+        }
+        tch::no_grad(|| var.copy_(&src.to_kind(var.kind()).to_device(var.device())));
+    }
+    Ok(())
+}

@@ -1,0 +1,114 @@
+//! The settings of a training run that every algorithm shares: environment, reward, budget,
+//! parallel environments, evaluation and seeds ([`TrainConfig`], the `[train]` section of an
+//! experiment file), and the algorithm names ([`Algo`]).
+
+use rdpg_envs::{EnvOptions, WalkerReward};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{AgentError, Result};
+
+/// The learning algorithms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Algo {
+    /// Recurrent deterministic policy gradient (the off-policy learner, LSTM cores).
+    Rdpg,
+    /// DDPG: the same off-policy learner with feed-forward networks.
+    Ddpg,
+    /// PPO with an adaptive KL penalty (feed-forward, GAE).
+    Ppo,
+}
+
+impl Algo {
+    /// The name used in experiment files, summaries and tables (`rdpg`, `ddpg`, `ppo`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Algo::Rdpg => "rdpg",
+            Algo::Ddpg => "ddpg",
+            Algo::Ppo => "ppo",
+        }
+    }
+}
+
+/// Everything about a training run that does not depend on the algorithm.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Environment id (see `rdpg_envs::ENV_IDS`).
+    pub env: String,
+    /// Observation components hidden from the agent (indices into the env's observation).
+    pub hide_obs: Vec<usize>,
+    /// Walkers: reward used for learning (`stock` or `paper`); evaluation always reports the
+    /// stock return.
+    pub reward: WalkerReward,
+    /// Budget in environment steps (over all environments).
+    pub total_steps: u64,
+    /// Environments acting in parallel.
+    pub num_envs: usize,
+    /// Worker threads stepping them.
+    pub workers: usize,
+    /// Evaluate every this many environment steps (0: only at the end).
+    pub eval_every: u64,
+    /// Deterministic evaluation episodes.
+    pub eval_episodes: usize,
+    /// First seed of the held-out evaluation episodes (episode k uses `eval_seed + k`).
+    pub eval_seed: u64,
+    /// Master seed of the run.
+    pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            env: "PendulumNoVel-v1".into(),
+            hide_obs: Vec::new(),
+            reward: WalkerReward::Stock,
+            total_steps: 50_000,
+            num_envs: 1,
+            workers: 1,
+            eval_every: 5_000,
+            eval_episodes: 10,
+            eval_seed: 1_000_000,
+            seed: 0,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Checks every field; the error names the offending one (`train.<field>`).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &'static str, reason: String| Err(AgentError::Config { field, reason });
+        if !rdpg_envs::ENV_IDS.contains(&self.env.as_str()) {
+            return bad(
+                "train.env",
+                format!(
+                    "unknown id {:?} (known: {})",
+                    self.env,
+                    rdpg_envs::ENV_IDS.join(", ")
+                ),
+            );
+        }
+        if self.total_steps == 0 {
+            return bad("train.total_steps", "must be positive".into());
+        }
+        if self.num_envs == 0 {
+            return bad("train.num_envs", "must be at least 1".into());
+        }
+        if self.workers == 0 {
+            return bad("train.workers", "must be at least 1".into());
+        }
+        if self.eval_episodes == 0 {
+            return bad("train.eval_episodes", "must be at least 1".into());
+        }
+        Ok(())
+    }
+
+    /// The environment options of the run's training environments.
+    pub fn env_options(&self) -> EnvOptions {
+        EnvOptions {
+            reward: self.reward,
+            hide_obs: self.hide_obs.clone(),
+            max_episode_steps: None,
+        }
+    }
+}

@@ -1,0 +1,20 @@
+//! What every learner and trainer shares: the run config, the [`Trainer`] surface and its
+//! observers, the collector, deterministic policies and their evaluation, checkpoint I/O,
+//! tensor helpers and Adam.
+//!
+//! Nothing here knows a particular algorithm: `rdpg/` and `ppo/` import from here, never the
+//! other way round.
+
+pub mod adam;
+pub mod checkpoint;
+pub mod collector;
+pub mod config;
+pub mod policy;
+pub mod tensor;
+pub mod trainer;
+
+pub use collector::{Collector, CollectorState, Transition};
+pub use config::{Algo, TrainConfig};
+pub use policy::{evaluate_policy, to_env_action, DeterministicPolicy};
+pub use tensor::DeviceSpec;
+pub use trainer::{EpisodeRecord, EvalRecord, Quiet, TrainObserver, Trainer, UpdateStats};

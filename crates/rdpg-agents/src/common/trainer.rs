@@ -1,0 +1,109 @@
+//! The surface every trainer offers, so that a driver (the CLI, tests, bindings) runs any
+//! algorithm the same way: [`Trainer`] (run, evaluate, save, load through
+//! [`crate::load_trainer`]), the progress callbacks of [`TrainObserver`] and the records they
+//! receive.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::common::config::TrainConfig;
+use crate::error::Result;
+
+/// What one update reported, in the terms every learner shares.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct UpdateStats {
+    /// Critic loss (RDPG: weighted squared TD error, summed over twin critics; PPO: the value
+    /// loss).
+    pub critic_loss: f64,
+    /// Actor loss (RDPG: `-Q(o, mu(o))` averaged over real steps; PPO: the KL-penalised
+    /// surrogate, negated).
+    pub actor_loss: f64,
+    /// Mean value estimate (RDPG: `Q(o_i, a_i)` of the first critic over real steps; PPO: the
+    /// mean value prediction).
+    pub q_mean: f64,
+}
+
+/// A finished training episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeRecord {
+    /// Environment steps taken by the run when the episode ended.
+    pub step: u64,
+    /// Which environment of the vector env.
+    pub env: usize,
+    /// Sum of the training reward (with exploration noise).
+    pub ret: f64,
+    /// Sum of the stock reward (equals `ret` unless training on another reward).
+    pub stock_return: f64,
+    /// Length in steps.
+    pub len: usize,
+    /// Reached the end of the course without falling (walkers).
+    pub success: bool,
+}
+
+/// A deterministic evaluation on held-out seeds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalRecord {
+    /// Environment steps of the run at evaluation time.
+    pub step: u64,
+    /// Mean stock return.
+    pub mean_return: f64,
+    /// Standard deviation of the stock return.
+    pub std_return: f64,
+    /// Share of episodes that reached the end of the course.
+    pub success_rate: f64,
+    /// Every episode's stock return.
+    pub returns: Vec<f64>,
+}
+
+/// Receives progress from [`Trainer::run`] (metrics files, progress bars, tests).
+pub trait TrainObserver {
+    /// An episode finished.
+    fn on_episode(&mut self, _rec: &EpisodeRecord) {}
+    /// An evaluation finished.
+    fn on_eval(&mut self, _rec: &EvalRecord) {}
+    /// An update was made at environment step `step`.
+    fn on_update(&mut self, _step: u64, _stats: &UpdateStats) {}
+    /// Called before every vector step; return `true` to stop (e.g. Ctrl-C, to save first).
+    fn should_stop(&mut self, _step: u64) -> bool {
+        false
+    }
+}
+
+/// An observer that ignores everything.
+pub struct Quiet;
+impl TrainObserver for Quiet {}
+
+/// A training run of any algorithm. Build one with [`crate::new_trainer`], resume one with
+/// [`crate::load_trainer`].
+pub trait Trainer {
+    /// Runs until `until` environment steps (capped by the budget) or until the observer asks
+    /// to stop. Returns the step count reached. A call may stop anywhere (mid-episode,
+    /// mid-rollout) and the next one continues as if it had not.
+    fn run(&mut self, until: u64, observer: &mut dyn TrainObserver) -> Result<u64>;
+
+    /// Deterministic evaluation (no exploration) of the current agent on the held-out seeds
+    /// `eval_seed..`, on the stock reward, stamped with the current step.
+    fn evaluate(&mut self) -> Result<EvalRecord>;
+
+    /// Writes a checkpoint of the whole run to `dir` (agent, optimiser, replay or rollout,
+    /// generators, environments, counters); [`crate::load_trainer`] continues it
+    /// bit-identically.
+    fn save(&mut self, dir: &Path) -> Result<()>;
+
+    /// Writes the agent alone (networks, optimiser) to `dir`: what `checkpoints/best` holds
+    /// and what [`crate::load_policy`] reads.
+    fn save_agent(&self, dir: &Path) -> Result<()>;
+
+    /// Environment steps taken so far (over all environments).
+    fn steps(&self) -> u64;
+
+    /// Updates made so far.
+    fn updates(&self) -> u64;
+
+    /// Raises (or lowers) the budget in environment steps, e.g. to continue a finished run.
+    fn set_total_steps(&mut self, total: u64);
+
+    /// The run's settings.
+    fn config(&self) -> &TrainConfig;
+}

@@ -1,0 +1,532 @@
+//! The RDPG agent (or its feed-forward DDPG variant): networks, target copies, optimisers,
+//! acting with the trained actor ([`RdpgAgent::act`]) or with its exploring copy
+//! ([`RdpgAgent::act_exploring`], parameter-space noise), and batch checks. The update is in
+//! `update.rs`, checkpoints in `checkpoint.rs`.
+
+use rdpg_core::rng::NpRng;
+use rdpg_core::SequenceBatch;
+use tch::nn::VarStore;
+use tch::{Device, Kind, Tensor};
+
+use super::config::RdpgConfig;
+use super::lstm::RecState;
+use super::nets::{Actor, Critic};
+use super::update::PhaseTimes;
+use crate::common::adam::{Adam, AdamConfig};
+use crate::common::tensor::{
+    init_from_rng, resolve_device, sorted_vars, tensor_to_vec, tensor_to_vec64,
+};
+use crate::error::{AgentError, Result};
+
+/// The recurrent state of the actor for a batch of environments, carried between
+/// [`RdpgAgent::act`] calls. Feed-forward agents carry an empty (zero-width) state.
+#[derive(Debug)]
+pub struct ActorState {
+    state: RecState,
+    n_envs: usize,
+    hidden: usize,
+}
+
+impl ActorState {
+    /// Number of environments.
+    pub fn n_envs(&self) -> usize {
+        self.n_envs
+    }
+
+    /// Size of one environment's state as stored in the replay (`2 * hidden`: `h` then `c`).
+    pub fn state_dim(&self) -> usize {
+        2 * self.hidden
+    }
+
+    /// Zeroes every environment's state.
+    pub fn reset(&mut self) {
+        tch::no_grad(|| {
+            let _ = self.state.h.zero_();
+            let _ = self.state.c.zero_();
+        });
+    }
+
+    /// Zeroes environment `env`'s state (call when its episode ends).
+    pub fn reset_env(&mut self, env: usize) {
+        assert!(
+            env < self.n_envs,
+            "env {env} out of range ({} envs)",
+            self.n_envs
+        );
+        tch::no_grad(|| {
+            let _ = self.state.h.select(1, env as i64).zero_();
+            let _ = self.state.c.select(1, env as i64).zero_();
+        });
+    }
+
+    /// Environment `env`'s state, `[h (hidden), c (hidden)]`: what the replay stores as the
+    /// acting-time state of a step (take it *before* acting on that step).
+    pub fn env_state(&self, env: usize) -> Vec<f32> {
+        assert!(
+            env < self.n_envs,
+            "env {env} out of range ({} envs)",
+            self.n_envs
+        );
+        let hc = Tensor::cat(
+            &[
+                self.state.h.select(1, env as i64),
+                self.state.c.select(1, env as i64),
+            ],
+            1,
+        );
+        tensor_to_vec(&hc)
+    }
+
+    /// All states, `[n_envs, 2 * hidden]` row-major (`h` then `c` per environment).
+    pub fn to_vec(&self) -> Vec<f32> {
+        tensor_to_vec(&Tensor::cat(
+            &[self.state.h.squeeze_dim(0), self.state.c.squeeze_dim(0)],
+            1,
+        ))
+    }
+
+    /// Overwrites environment `env`'s state with `[h, c]` (`2 * hidden` values), e.g. the
+    /// random Gaussian start the authors' code used when acting.
+    pub fn set_env_state(&mut self, env: usize, hc: &[f32]) {
+        assert!(
+            env < self.n_envs,
+            "env {env} out of range ({} envs)",
+            self.n_envs
+        );
+        assert_eq!(hc.len(), 2 * self.hidden, "state size");
+        let h = self.hidden as i64;
+        let t = Tensor::from_slice(hc)
+            .to_kind(self.state.h.kind())
+            .to_device(self.state.h.device());
+        tch::no_grad(|| {
+            self.state
+                .h
+                .select(1, env as i64)
+                .squeeze_dim(0)
+                .copy_(&t.narrow(0, 0, h));
+            self.state
+                .c
+                .select(1, env as i64)
+                .squeeze_dim(0)
+                .copy_(&t.narrow(0, h, h));
+        });
+    }
+}
+
+/// Target copies of the networks (only when `tau > 0`).
+pub(super) struct Targets {
+    pub(super) actor_vs: VarStore,
+    pub(super) actor: Actor,
+    pub(super) critic_vs: Vec<VarStore>,
+    pub(super) critics: Vec<Critic>,
+    /// (target variable, online variable) pairs for the soft update.
+    pub(super) pairs: Vec<(Tensor, Tensor)>,
+}
+
+/// Recurrent deterministic policy gradient agent (or feed-forward DDPG when
+/// `config.recurrent` is false).
+pub struct RdpgAgent {
+    pub(super) cfg: RdpgConfig,
+    pub(super) obs_dim: usize,
+    pub(super) act_dim: usize,
+    pub(super) seed: u64,
+    pub(super) device: Device,
+    pub(super) kind: Kind,
+    pub(super) actor_vs: VarStore,
+    pub(super) actor: Actor,
+    pub(super) critic_vs: Vec<VarStore>,
+    pub(super) critics: Vec<Critic>,
+    pub(super) targets: Option<Targets>,
+    pub(super) actor_opt: Adam,
+    pub(super) critic_opt: Adam,
+    pub(super) rng: NpRng,
+    pub(super) updates: u64,
+    pub(super) profile: Option<PhaseTimes>,
+    /// A copy of the actor with perturbed parameters that [`RdpgAgent::act_exploring`] uses
+    /// (parameter-space exploration); not trained, not checkpointed.
+    pub(super) exploring: Option<(VarStore, Actor)>,
+}
+
+impl std::fmt::Debug for RdpgAgent {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RdpgAgent")
+            .field("obs_dim", &self.obs_dim)
+            .field("act_dim", &self.act_dim)
+            .field("device", &self.device)
+            .field("updates", &self.updates)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RdpgAgent {
+    /// A new agent with freshly initialised networks (f32). `seed` seeds the agent's own
+    /// [`NpRng`], which draws the initial weights ([`init_from_rng`]: independent of libtorch's
+    /// process-wide generator) and then the target policy noise.
+    pub fn new(cfg: RdpgConfig, obs_dim: usize, act_dim: usize, seed: u64) -> Result<Self> {
+        Self::new_with_kind(cfg, obs_dim, act_dim, seed, Kind::Float)
+    }
+
+    /// Like [`RdpgAgent::new`] with a chosen floating-point kind (`Kind::Double` for gradient
+    /// checks).
+    pub fn new_with_kind(
+        cfg: RdpgConfig,
+        obs_dim: usize,
+        act_dim: usize,
+        seed: u64,
+        kind: Kind,
+    ) -> Result<Self> {
+        cfg.validate()?;
+        cfg.check_dims(obs_dim, act_dim)?;
+        if !matches!(kind, Kind::Float | Kind::Double) {
+            return Err(AgentError::Config {
+                field: "kind",
+                reason: "Float or Double".into(),
+            });
+        }
+        if let Some(n) = cfg.num_threads {
+            tch::set_num_threads(n as i32);
+        }
+        let device = resolve_device(cfg.device)?;
+        let (d, a) = (obs_dim as i64, act_dim as i64);
+        let n_critics = if cfg.twin_critic { 2 } else { 1 };
+        let critic_name = |i: usize| {
+            if i == 0 {
+                "critic".to_string()
+            } else {
+                format!("critic{}", i + 1)
+            }
+        };
+
+        let mut rng = NpRng::from_seed(seed);
+        let mut build = |device, init: bool| {
+            let mut actor_vs = VarStore::new(device);
+            let actor = Actor::new(&(actor_vs.root() / "actor"), &cfg, d, a);
+            let mut critic_vs = Vec::new();
+            let mut critics = Vec::new();
+            for i in 0..n_critics {
+                let mut vs = VarStore::new(device);
+                critics.push(Critic::new(&(vs.root() / critic_name(i)), &cfg, d, a));
+                if kind == Kind::Double {
+                    vs.double();
+                }
+                critic_vs.push(vs);
+            }
+            if kind == Kind::Double {
+                actor_vs.double();
+            }
+            if init {
+                init_from_rng(&actor_vs, &mut rng);
+                for vs in &critic_vs {
+                    init_from_rng(vs, &mut rng);
+                }
+            }
+            (actor_vs, actor, critic_vs, critics)
+        };
+        let (actor_vs, actor, critic_vs, critics) = build(device, true);
+        let targets = if cfg.tau > 0.0 {
+            let (mut t_actor_vs, t_actor, mut t_critic_vs, t_critics) = build(device, false);
+            t_actor_vs.copy(&actor_vs)?;
+            for (t, s) in t_critic_vs.iter_mut().zip(&critic_vs) {
+                t.copy(s)?;
+            }
+            let mut pairs = Vec::new();
+            let mut push = |t: &VarStore, s: &VarStore| {
+                let sv = s.variables();
+                for (name, tv) in sorted_vars(t) {
+                    pairs.push((tv, sv[&name].shallow_clone()));
+                }
+            };
+            push(&t_actor_vs, &actor_vs);
+            for (t, s) in t_critic_vs.iter().zip(&critic_vs) {
+                push(t, s);
+            }
+            // Target networks never need gradients.
+            t_actor_vs.freeze();
+            for vs in &mut t_critic_vs {
+                vs.freeze();
+            }
+            Some(Targets {
+                actor_vs: t_actor_vs,
+                actor: t_actor,
+                critic_vs: t_critic_vs,
+                critics: t_critics,
+                pairs,
+            })
+        } else {
+            None
+        };
+
+        let adam = |lr, wd| AdamConfig {
+            lr,
+            beta1: cfg.adam_beta1,
+            beta2: cfg.adam_beta2,
+            eps: cfg.adam_eps,
+            weight_decay: wd,
+        };
+        let actor_opt = Adam::new(adam(cfg.lr_actor, 0.0), sorted_vars(&actor_vs));
+        let critic_params: Vec<_> = critic_vs.iter().flat_map(sorted_vars).collect();
+        let critic_opt = Adam::new(adam(cfg.lr_critic, cfg.critic_l2), critic_params);
+
+        Ok(Self {
+            rng,
+            cfg,
+            obs_dim,
+            act_dim,
+            seed,
+            device,
+            kind,
+            actor_vs,
+            actor,
+            critic_vs,
+            critics,
+            targets,
+            actor_opt,
+            critic_opt,
+            updates: 0,
+            profile: None,
+            exploring: None,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &RdpgConfig {
+        &self.cfg
+    }
+
+    /// Observation size.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+
+    /// Action size.
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
+
+    /// The device the networks live on.
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    /// Number of updates performed (restored by [`RdpgAgent::load`]).
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// Size of one stored acting-time state (`2 * actor_hidden`, 0 for feed-forward agents):
+    /// the `state_dim` a replay storing states must use.
+    pub fn state_dim(&self) -> usize {
+        2 * self.actor.core.state_width() as usize
+    }
+
+    /// The actor network.
+    pub fn actor(&self) -> &Actor {
+        &self.actor
+    }
+
+    /// The critic networks (one, or two when `twin_critic`).
+    pub fn critics(&self) -> &[Critic] {
+        &self.critics
+    }
+
+    /// A zero actor state for `n_envs` environments.
+    pub fn initial_state(&self, n_envs: usize) -> ActorState {
+        let hidden = self.actor.core.state_width();
+        ActorState {
+            state: RecState::zeros(n_envs as i64, hidden, self.kind, self.device),
+            n_envs,
+            hidden: hidden as usize,
+        }
+    }
+
+    /// Zeroes the state of environment `env` (`None`: all environments), at an episode start.
+    pub fn reset_state(&self, state: &mut ActorState, env: Option<usize>) {
+        match env {
+            Some(e) => state.reset_env(e),
+            None => state.reset(),
+        }
+    }
+
+    /// Deterministic actions `mu(o_t | h_{t-1})` of the trained actor for a batch of
+    /// environments: `obs` is `[n_envs, obs_dim]` row-major, the result `[n_envs, act_dim]` in
+    /// `[-1, 1]`; `state` advances by one step. Evaluation and updates use this actor.
+    ///
+    /// # Panics
+    /// If `obs.len() != state.n_envs() * obs_dim`.
+    pub fn act(&self, obs: &[f32], state: &mut ActorState) -> Vec<f32> {
+        self.act_with(&self.actor, obs, state)
+    }
+
+    /// Like [`RdpgAgent::act`], with the exploring copy of the actor (its parameters set by
+    /// [`RdpgAgent::set_exploring_params`], parameter-space noise) when there is one, else
+    /// with the trained actor. Action noise is the caller's business.
+    ///
+    /// # Panics
+    /// If `obs.len() != state.n_envs() * obs_dim`.
+    pub fn act_exploring(&self, obs: &[f32], state: &mut ActorState) -> Vec<f32> {
+        let actor = self.exploring.as_ref().map_or(&self.actor, |(_, a)| a);
+        self.act_with(actor, obs, state)
+    }
+
+    fn act_with(&self, actor: &Actor, obs: &[f32], state: &mut ActorState) -> Vec<f32> {
+        let n = state.n_envs;
+        assert_eq!(
+            obs.len(),
+            n * self.obs_dim,
+            "act: obs has {} values, expected n_envs {n} x obs_dim {}",
+            obs.len(),
+            self.obs_dim
+        );
+        let a = tch::no_grad(|| {
+            let o = Tensor::from_slice(obs)
+                .view([n as i64, self.obs_dim as i64])
+                .to_kind(self.kind)
+                .to_device(self.device);
+            let (a, s) = actor.step(&o, &state.state);
+            state.state = s;
+            a
+        });
+        tensor_to_vec(&a)
+    }
+
+    /// Number of actor parameters (the length of [`RdpgAgent::actor_params`]).
+    pub fn actor_param_count(&self) -> usize {
+        sorted_vars(&self.actor_vs)
+            .iter()
+            .map(|(_, t)| t.numel())
+            .sum()
+    }
+
+    /// The actor's parameters as one vector: variables in name order, each row-major. The
+    /// layout `rdpg_core::noise::AdaptiveParamNoise::perturb` works on.
+    pub fn actor_params(&self) -> Vec<f32> {
+        sorted_vars(&self.actor_vs)
+            .iter()
+            .flat_map(|(_, t)| tensor_to_vec(t))
+            .collect()
+    }
+
+    /// Parameter-space exploration (paper Sec. II-B, Plappert et al. 2018): from now on
+    /// [`RdpgAgent::act_exploring`] uses a copy of the actor with these parameters (layout of
+    /// [`RdpgAgent::actor_params`], e.g. perturbed by
+    /// `rdpg_core::noise::AdaptiveParamNoise::perturb`); `None` explores with the trained
+    /// actor again. The copy is neither trained nor checkpointed: perturb again after updates.
+    pub fn set_exploring_params(&mut self, params: Option<&[f32]>) -> Result<()> {
+        let Some(params) = params else {
+            self.exploring = None;
+            return Ok(());
+        };
+        if params.len() != self.actor_param_count() {
+            return Err(AgentError::Shape(format!(
+                "exploring params: {} values, the actor has {}",
+                params.len(),
+                self.actor_param_count()
+            )));
+        }
+        if self.exploring.is_none() {
+            let mut vs = VarStore::new(self.device);
+            let actor = Actor::new(
+                &(vs.root() / "actor"),
+                &self.cfg,
+                self.obs_dim as i64,
+                self.act_dim as i64,
+            );
+            if self.kind == Kind::Double {
+                vs.double();
+            }
+            vs.freeze();
+            self.exploring = Some((vs, actor));
+        }
+        let (vs, _) = self.exploring.as_ref().expect("exploring actor");
+        let mut offset = 0;
+        for (_, mut var) in sorted_vars(vs) {
+            let k = var.numel();
+            let src = Tensor::from_slice(&params[offset..offset + k])
+                .view(var.size().as_slice())
+                .to_kind(self.kind)
+                .to_device(self.device);
+            tch::no_grad(|| var.copy_(&src));
+            offset += k;
+        }
+        Ok(())
+    }
+
+    /// Checks a batch against this agent (sizes, lengths, mask, stored state).
+    pub fn check_batch(&self, b: &SequenceBatch) -> Result<()> {
+        let err = |m: String| Err(AgentError::Shape(m));
+        let t = b.scan + b.opt;
+        if b.obs_dim != self.obs_dim || b.act_dim != self.act_dim {
+            return err(format!(
+                "batch obs/act dims {}/{} but agent {}/{}",
+                b.obs_dim, b.act_dim, self.obs_dim, self.act_dim
+            ));
+        }
+        if b.n == 0 || b.opt == 0 {
+            return err("batch needs n >= 1 and opt >= 1".into());
+        }
+        if b.obs.len() != b.n * (t + 1) * b.obs_dim
+            || b.actions.len() != b.n * t * b.act_dim
+            || b.rewards.len() != b.n * t
+            || b.mask.len() != b.n * t
+            || b.scan_len.len() != b.n
+            || b.opt_len.len() != b.n
+            || b.tail_terminated.len() != b.n
+        {
+            return err("batch array lengths do not match n, scan, opt, dims".into());
+        }
+        for i in 0..b.n {
+            let (k, len) = (b.scan_len[i], b.opt_len[i]);
+            if k > b.scan || len == 0 || len > b.opt {
+                return err(format!(
+                    "window {i}: scan_len {k} / opt_len {len} out of range"
+                ));
+            }
+            for j in 0..t {
+                let real = if j < b.scan {
+                    j >= b.scan - k
+                } else {
+                    j - b.scan < len
+                };
+                if (b.mask[i * t + j] != 0.0) != real {
+                    return err(format!(
+                        "window {i}: mask at step {j} disagrees with lengths"
+                    ));
+                }
+            }
+        }
+        if self.cfg.burn_in_from_stored_state && b.scan > 0 {
+            match &b.stored_state {
+                Some(s) if b.state_dim == self.state_dim() && s.len() == b.n * b.state_dim => {}
+                _ => {
+                    return err(format!(
+                        "burn_in_from_stored_state needs stored states of size {}",
+                        self.state_dim()
+                    ))
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// All network weights (targets included, prefixed `target.`) flattened to f64, by name;
+    /// for tests and diagnostics.
+    pub fn weights(&self) -> Vec<(String, Vec<f64>)> {
+        let mut out = Vec::new();
+        let mut add = |vs: &VarStore, prefix: &str| {
+            for (n, t) in sorted_vars(vs) {
+                out.push((format!("{prefix}{n}"), tensor_to_vec64(&t)));
+            }
+        };
+        add(&self.actor_vs, "");
+        for vs in &self.critic_vs {
+            add(vs, "");
+        }
+        if let Some(t) = &self.targets {
+            add(&t.actor_vs, "target.");
+            for vs in &t.critic_vs {
+                add(vs, "target.");
+            }
+        }
+        out
+    }
+}

@@ -1,0 +1,32 @@
+//! The recurrent deterministic policy gradient (RDPG) of Song et al. (ICARCV 2018) and its
+//! feed-forward DDPG variant (the same agent with `recurrent = false`).
+//!
+//! * [`config`]: the learner's hyper-parameters ([`RdpgConfig`]);
+//!   [`off_policy`]: the loop's ([`OffPolicyConfig`]: warm-up, replay, noise, injection).
+//! * [`lstm`]: the recurrent core and the no-gradient scan it drives; [`nets`]: trunks, actor
+//!   and critic.
+//! * [`agent`]: [`RdpgAgent`], acting with the trained actor or its exploring copy.
+//! * [`update`]: Algorithm 1's `Update()`, top to bottom; [`checkpoint`]: save and load.
+//! * [`trainer`]: [`OffPolicyTrainer`], Algorithm 1's outer loop; [`inject`]: experience
+//!   injection from teacher files.
+//! * [`bench`](mod@bench): synthetic batches and the update benchmark.
+
+pub mod agent;
+pub mod bench;
+pub mod checkpoint;
+pub mod config;
+pub mod inject;
+pub mod lstm;
+pub mod nets;
+pub mod off_policy;
+pub mod trainer;
+pub mod update;
+
+pub use agent::{ActorState, RdpgAgent};
+pub use config::{memory_task_config, RdpgConfig, ScanMethod, TargetNoise, Trunk};
+pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec};
+pub use trainer::{OffPolicyTrainer, RdpgPolicy};
+pub use update::PhaseTimes;
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,301 @@
+//! Actor and critic networks (paper Section III-D, "Network structure").
+//!
+//! * **Trunk** (state embedding, per time step): for BipedalWalker the last 10 observation
+//!   values are lidar ranges and the first 14 body sensors. Lidar: 1-D convolution
+//!   (1 -> 64 channels, kernel 3) + ReLU + max-pool (2) + FC 64 + ReLU; body: FC 14 -> 192 +
+//!   ReLU; concatenated (256). Tasks without lidar use an MLP trunk.
+//! * **Actor**: trunk -> LSTM 256 -> FC + tanh -> action.
+//! * **Critic**: trunk, and an action branch FC act_dim -> 64 + ReLU, concatenated -> LSTM 320
+//!   -> linear Q.
+//! * **Feed-forward** variants (DDPG, paper Table I): the LSTM replaced by FC + ReLU of the same
+//!   width; their recurrent state is empty (zero-width) and passes through unchanged.
+//!
+//! The paper's text says the LSTM layer comes "with ReLU"; the LSTM output `h = o * tanh(c)` is
+//! fed to the head directly here (the project's notes on the authors' released code list
+//! "LSTM 256, linear + tanh"). The recurrent core and how it runs sequences and single steps
+//! are in [`super::lstm`].
+//!
+//! Shapes: `B` batch (windows or environments), `T` time steps, `D` observation size, `A` action
+//! size, `E` embedding size, `H` recurrent width. Recurrent states are `[1, B, H]` (libtorch's
+//! `[layers, batch, hidden]`). Sequences are batch-first.
+
+use tch::nn::{self, Module};
+use tch::Tensor;
+
+use super::config::{RdpgConfig, Trunk};
+use super::lstm::{Core, RecState};
+use crate::common::tensor::{Activation, Mlp, HEAD_INIT};
+
+/// Per-step observation embedding (see the module docs).
+#[derive(Debug)]
+pub enum TrunkNet {
+    /// Lidar convolution branch + body FC branch.
+    Lidar {
+        /// `Conv1d(1 -> C, k)`.
+        conv: nn::Conv1D,
+        /// FC on the flattened pooled convolution output.
+        lidar_fc: nn::Linear,
+        /// FC on the body sensors.
+        body_fc: nn::Linear,
+        /// Number of body sensors (first values of the observation).
+        body_dim: i64,
+        /// Number of lidar values (last values of the observation).
+        lidar_dim: i64,
+    },
+    /// MLP with ReLU after every layer (layers `fc0`, `fc1`, ...).
+    Mlp(Mlp),
+}
+
+impl TrunkNet {
+    /// Builds the trunk for observations of size `obs_dim`.
+    pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64) -> Self {
+        match &cfg.trunk {
+            Trunk::Lidar => {
+                let lidar_dim = cfg.lidar_dim as i64;
+                let ch = cfg.lidar_channels as i64;
+                let k = cfg.lidar_kernel as i64;
+                let conv = nn::conv1d(p / "lidar_conv", 1, ch, k, Default::default());
+                let pooled = (lidar_dim - k + 1) / 2;
+                let lidar_fc = nn::linear(
+                    p / "lidar_fc",
+                    ch * pooled,
+                    cfg.lidar_fc as i64,
+                    Default::default(),
+                );
+                let body_dim = obs_dim - lidar_dim;
+                let body_fc = nn::linear(
+                    p / "body_fc",
+                    body_dim,
+                    cfg.body_fc as i64,
+                    Default::default(),
+                );
+                TrunkNet::Lidar {
+                    conv,
+                    lidar_fc,
+                    body_fc,
+                    body_dim,
+                    lidar_dim,
+                }
+            }
+            Trunk::Mlp { hidden } => TrunkNet::Mlp(Mlp::new(
+                p,
+                obs_dim as usize,
+                hidden,
+                "fc",
+                None,
+                Activation::Relu,
+            )),
+        }
+    }
+
+    /// `obs [N, D]` -> embedding `[N, E]`.
+    pub fn forward(&self, obs: &Tensor) -> Tensor {
+        match self {
+            TrunkNet::Lidar {
+                conv,
+                lidar_fc,
+                body_fc,
+                body_dim,
+                lidar_dim,
+            } => {
+                let body = obs.narrow(1, 0, *body_dim); // [N, 14]
+                let lidar = obs.narrow(1, *body_dim, *lidar_dim).unsqueeze(1); // [N, 1, 10]
+                let l = conv
+                    .forward(&lidar) // [N, C, 10 - k + 1]
+                    .relu()
+                    .max_pool1d([2], [2], [0], [1], false) // [N, C, (10 - k + 1) / 2]
+                    .flatten(1, 2); // [N, C * P]
+                let l = lidar_fc.forward(&l).relu(); // [N, 64]
+                let b = body_fc.forward(&body).relu(); // [N, 192]
+                Tensor::cat(&[l, b], 1) // [N, 256]
+            }
+            TrunkNet::Mlp(mlp) => mlp.forward(obs),
+        }
+    }
+
+    /// `obs [B, T, D]` -> `[B, T, E]`.
+    pub fn forward_seq(&self, obs: &Tensor) -> Tensor {
+        let s = obs.size();
+        let e = self.forward(&obs.reshape([s[0] * s[1], s[2]]));
+        let e_dim = e.size()[1];
+        e.reshape([s[0], s[1], e_dim])
+    }
+}
+
+fn head_linear(p: nn::Path, in_dim: i64, out_dim: i64) -> nn::Linear {
+    let init = nn::Init::Uniform {
+        lo: -HEAD_INIT,
+        up: HEAD_INIT,
+    };
+    nn::linear(
+        p,
+        in_dim,
+        out_dim,
+        nn::LinearConfig {
+            ws_init: init,
+            bs_init: Some(init),
+            bias: true,
+        },
+    )
+}
+
+/// The policy `mu(o_t | h_{t-1})`: trunk -> core -> FC + tanh.
+#[derive(Debug)]
+pub struct Actor {
+    /// Observation embedding.
+    pub trunk: TrunkNet,
+    /// LSTM (or FC) core.
+    pub core: Core,
+    /// Output layer (before tanh).
+    pub head: nn::Linear,
+}
+
+impl Actor {
+    /// Builds the actor's variables under `p`.
+    pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64, act_dim: i64) -> Self {
+        let trunk = TrunkNet::new(&(p / "trunk"), cfg, obs_dim);
+        let e = cfg.embed_dim() as i64;
+        let h = cfg.actor_hidden as i64;
+        let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
+        let head = head_linear(p / "head", h, act_dim);
+        Self { trunk, core, head }
+    }
+
+    /// Core input for a sequence: `obs [B, T, D]` -> `[B, T, E]`.
+    pub fn input_seq(&self, obs: &Tensor) -> Tensor {
+        self.trunk.forward_seq(obs)
+    }
+
+    /// Core output -> action: `[.., H]` -> `[.., A]` in `(-1, 1)`.
+    pub fn head(&self, y: &Tensor) -> Tensor {
+        self.head.forward(y).tanh()
+    }
+
+    /// Actions along a sequence: `obs [B, T, D]` from `h0` -> (`[B, T, A]`, final state).
+    pub fn forward_seq(&self, obs: &Tensor, h0: &RecState) -> (Tensor, RecState) {
+        let (y, s) = self.core.seq(&self.input_seq(obs), h0);
+        (self.head(&y), s)
+    }
+
+    /// One step for a batch of environments: `obs [B, D]` -> (`[B, A]`, next state).
+    pub fn step(&self, obs: &Tensor, s: &RecState) -> (Tensor, RecState) {
+        let (y, s) = self.core.step(&self.trunk.forward(obs), s);
+        (self.head(&y), s)
+    }
+}
+
+/// The critic `Q(o_t, a_t | h_{t-1})`: (trunk ++ action FC) -> core -> linear.
+#[derive(Debug)]
+pub struct Critic {
+    /// Observation embedding.
+    pub trunk: TrunkNet,
+    /// Action branch, `A -> critic_action_fc`, ReLU.
+    pub act_fc: nn::Linear,
+    /// LSTM (or FC) core.
+    pub core: Core,
+    /// Output layer `H -> 1`.
+    pub head: nn::Linear,
+}
+
+impl Critic {
+    /// Builds the critic's variables under `p`.
+    pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64, act_dim: i64) -> Self {
+        let trunk = TrunkNet::new(&(p / "trunk"), cfg, obs_dim);
+        let af = cfg.critic_action_fc as i64;
+        let act_fc = nn::linear(p / "act_fc", act_dim, af, Default::default());
+        let e = cfg.embed_dim() as i64 + af;
+        let h = cfg.critic_hidden as i64;
+        let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
+        let head = head_linear(p / "head", h, 1);
+        Self {
+            trunk,
+            act_fc,
+            core,
+            head,
+        }
+    }
+
+    /// Core input: `obs [B, T, D]`, `act [B, T, A]` -> `[B, T, E + 64]`.
+    pub fn input_seq(&self, obs: &Tensor, act: &Tensor) -> Tensor {
+        let e = self.trunk.forward_seq(obs);
+        let a = self.act_fc.forward(act).relu();
+        Tensor::cat(&[e, a], 2)
+    }
+
+    /// Core output -> Q: `[.., H]` -> `[..]`.
+    pub fn head(&self, y: &Tensor) -> Tensor {
+        self.head.forward(y).squeeze_dim(-1)
+    }
+
+    /// Q along a sequence: `obs [B, T, D]`, `act [B, T, A]` from `h0` -> (`[B, T]`, final
+    /// state).
+    pub fn forward_seq(&self, obs: &Tensor, act: &Tensor, h0: &RecState) -> (Tensor, RecState) {
+        let (y, s) = self.core.seq(&self.input_seq(obs, act), h0);
+        (self.head(&y), s)
+    }
+
+    /// Core input for single steps: `obs [N, D]`, `act [N, A]` -> `[N, E + 64]`.
+    pub fn input(&self, obs: &Tensor, act: &Tensor) -> Tensor {
+        let e = self.trunk.forward(obs);
+        let a = self.act_fc.forward(act).relu();
+        Tensor::cat(&[e, a], 1)
+    }
+
+    /// One step: `obs [B, D]`, `act [B, A]` -> (`[B]`, next state).
+    pub fn step(&self, obs: &Tensor, act: &Tensor, s: &RecState) -> (Tensor, RecState) {
+        let (y, s) = self.core.step(&self.input(obs, act), s);
+        (self.head(&y), s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::{Device, Kind};
+
+    fn cfg_small() -> RdpgConfig {
+        RdpgConfig {
+            lidar_channels: 4,
+            lidar_fc: 5,
+            body_fc: 6,
+            actor_hidden: 7,
+            critic_hidden: 9,
+            critic_action_fc: 3,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn shapes_lidar_and_mlp() {
+        tch::manual_seed(0);
+        for cfg in [
+            cfg_small(),
+            RdpgConfig {
+                trunk: Trunk::Mlp { hidden: vec![8, 6] },
+                ..cfg_small()
+            },
+        ] {
+            for recurrent in [true, false] {
+                let cfg = RdpgConfig {
+                    recurrent,
+                    ..cfg.clone()
+                };
+                let vs = nn::VarStore::new(Device::Cpu);
+                let actor = Actor::new(&(vs.root() / "a"), &cfg, 24, 4);
+                let critic = Critic::new(&(vs.root() / "c"), &cfg, 24, 4);
+                let obs = Tensor::randn([3, 5, 24], (Kind::Float, Device::Cpu));
+                let act = Tensor::randn([3, 5, 4], (Kind::Float, Device::Cpu));
+                let h0 = actor.core.zero_state(3, Kind::Float, Device::Cpu);
+                let (a, s) = actor.forward_seq(&obs, &h0);
+                assert_eq!(a.size(), [3, 5, 4]);
+                assert_eq!(s.h.size(), [1, 3, if recurrent { 7 } else { 0 }]);
+                let h0 = critic.core.zero_state(3, Kind::Float, Device::Cpu);
+                let (q, _) = critic.forward_seq(&obs, &act, &h0);
+                assert_eq!(q.size(), [3, 5]);
+                let (q1, _) = critic.step(&obs.select(1, 0), &act.select(1, 0), &h0);
+                assert_eq!(q1.size(), [3]);
+                assert!(q1.allclose(&q.select(1, 0), 1e-6, 1e-6, false));
+            }
+        }
+    }
+}

@@ -1,0 +1,464 @@
+//! The off-policy training loop shared by RDPG and DDPG (Algorithm 1's outer loop).
+//!
+//! Acting runs on the shared [`Collector`] (N environments on worker threads) with batched
+//! policy inference; every environment keeps its own recurrent actor state and exploration
+//! noise. Each finished episode goes to the [`EpisodicReplay`] whole, and after the warm-up the
+//! agent makes `updates_per_step` updates per environment step on windows sampled from it.
+//!
+//! Everything random is seeded: the networks (`seed`), the environments (the collector's seed
+//! schedule), warm-up actions, noise and replay sampling (one [`NpRng`]). An
+//! [`OffPolicyTrainer`] can be checkpointed at any step ([`Trainer::save`]) and resumed
+//! ([`OffPolicyTrainer::load`]) bit-identically: episodes in progress are rebuilt from their
+//! seed and actions.
+
+use std::borrow::Borrow;
+use std::path::Path;
+
+use rdpg_core::noise::{
+    action_distance, ActionNoise, AdaptiveParamNoise, Gaussian, OrnsteinUhlenbeck, OuConfig,
+    ParamNoiseConfig,
+};
+use rdpg_core::replay::{Episode, EpisodicReplay, ReplayConfig};
+use rdpg_core::rng::NpRng;
+use serde::{Deserialize, Serialize};
+
+use super::agent::{ActorState, RdpgAgent};
+use super::config::RdpgConfig;
+use super::inject::TeacherFile;
+use super::off_policy::{ExplorationConfig, OffPolicyConfig};
+use crate::common::checkpoint::{
+    ckpt_err, read_bin, read_json, write_bin, write_json, Header, TrainerKind,
+};
+use crate::common::{
+    evaluate_policy, Collector, DeterministicPolicy, EvalRecord, TrainConfig, TrainObserver,
+    Trainer,
+};
+use crate::error::{AgentError, Result};
+
+/// The transitions of an episode in progress, as the replay will store them.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+struct EpisodeBuffer {
+    obs: Vec<f32>,
+    /// Actions in the agent's normalised `[-1, 1]` space.
+    actions: Vec<f32>,
+    rewards: Vec<f32>,
+    states: Vec<f32>,
+}
+
+/// The parameter noise of a run: σ, the perturbed parameters the envs act with (empty before
+/// the first perturbation) and when to perturb next.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ParamNoiseState {
+    noise: AdaptiveParamNoise,
+    acting: Vec<f32>,
+    next_perturb: u64,
+}
+
+/// The off-policy loop's own state, saved with a checkpoint as `loop.bin` (the collector's is
+/// `collector.bin`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct LoopState {
+    update_debt: f64,
+    rng: NpRng,
+    noise: Vec<ActionNoise>,
+    buffers: Vec<EpisodeBuffer>,
+    actor_state: Vec<f32>,
+    param_noise: Option<ParamNoiseState>,
+}
+
+/// Off-policy training of an [`RdpgAgent`] (recurrent RDPG or feed-forward DDPG).
+pub struct OffPolicyTrainer {
+    cfg: TrainConfig,
+    off: OffPolicyConfig,
+    agent: RdpgAgent,
+    replay: EpisodicReplay,
+    collector: Collector,
+    act_state: ActorState,
+    st: LoopState,
+}
+
+impl OffPolicyTrainer {
+    /// A fresh run (validates all three configs).
+    pub fn new(cfg: TrainConfig, off: OffPolicyConfig, agent_cfg: RdpgConfig) -> Result<Self> {
+        cfg.validate()?;
+        off.validate()?;
+        let collector = Collector::new(&cfg)?;
+        let (obs_dim, act_dim) = (collector.obs_dim(), collector.act_dim());
+        let agent = RdpgAgent::new(agent_cfg, obs_dim, act_dim, cfg.seed)?;
+        let state_dim = if agent.config().burn_in_from_stored_state {
+            agent.state_dim()
+        } else {
+            0
+        };
+        let mut rcfg =
+            ReplayConfig::new(off.replay_capacity, obs_dim, act_dim).with_state_dim(state_dim);
+        if let Some(inj) = &off.injection {
+            rcfg = rcfg.with_max_injected_fraction(inj.max_fraction);
+        }
+        let mut replay = EpisodicReplay::new(rcfg).map_err(|e| AgentError::Config {
+            field: "replay",
+            reason: e.to_string(),
+        })?;
+        for path in off.injection.iter().flat_map(|i| &i.teachers) {
+            let teacher = TeacherFile::load(path)?;
+            teacher.check_fits(&cfg, path)?;
+            if (teacher.obs_dim, teacher.act_dim) != (obs_dim, act_dim) {
+                return Err(AgentError::Config {
+                    field: "off_policy.injection",
+                    reason: format!(
+                        "teacher {} has obs/act sizes {}/{}, the env {obs_dim}/{act_dim}",
+                        path.display(),
+                        teacher.obs_dim,
+                        teacher.act_dim
+                    ),
+                });
+            }
+            for mut ep in teacher.episodes {
+                ep.injected = true;
+                replay.add_episode(ep).map_err(|e| AgentError::Config {
+                    field: "off_policy.injection",
+                    reason: format!("teacher {}: {e}", path.display()),
+                })?;
+            }
+        }
+        let n = cfg.num_envs;
+        let st = LoopState {
+            update_debt: 0.0,
+            rng: NpRng::from_seed(cfg.seed ^ 0x5EED_F07E_A1A1),
+            noise: (0..n)
+                .map(|_| make_noise(&off.exploration, act_dim))
+                .collect(),
+            buffers: collector
+                .obs()
+                .iter()
+                .map(|o| EpisodeBuffer {
+                    obs: o.clone(),
+                    ..Default::default()
+                })
+                .collect(),
+            actor_state: Vec::new(),
+            param_noise: off.param_noise.map(|p| ParamNoiseState {
+                noise: AdaptiveParamNoise::new(ParamNoiseConfig {
+                    initial_stddev: p.initial_stddev,
+                    desired_action_stddev: p.desired_action_stddev,
+                    adoption_coefficient: p.adoption_coefficient,
+                }),
+                acting: Vec::new(),
+                next_perturb: 0,
+            }),
+        };
+        let act_state = agent.initial_state(n);
+        Ok(Self {
+            cfg,
+            off,
+            agent,
+            replay,
+            collector,
+            act_state,
+            st,
+        })
+    }
+
+    /// Resumes a checkpoint written by [`Trainer::save`]; continuing gives the same result as
+    /// never having stopped.
+    pub fn load(dir: &Path) -> Result<Self> {
+        Header::read(dir, Some(TrainerKind::OffPolicy))?;
+        let cfg: TrainConfig = read_json(&dir.join("train.json"))?;
+        cfg.validate()?;
+        let off: OffPolicyConfig = read_json(&dir.join("off_policy.json"))?;
+        off.validate()?;
+        let mut agent = RdpgAgent::load(dir.join("agent"))?;
+        let replay: EpisodicReplay = read_bin(&dir.join("replay.bin"))?;
+        let st: LoopState = read_bin(&dir.join("loop.bin"))?;
+        let collector = Collector::restore(&cfg, read_bin(&dir.join("collector.bin"))?)?;
+        let n = cfg.num_envs;
+        if st.buffers.len() != n || st.noise.len() != n {
+            return Err(ckpt_err(
+                &dir.join("loop.bin"),
+                "loop state does not match train.num_envs",
+            ));
+        }
+        if (agent.obs_dim(), agent.act_dim()) != (collector.obs_dim(), collector.act_dim()) {
+            return Err(ckpt_err(
+                &dir.join("agent"),
+                "the agent's observation/action sizes do not match the environment",
+            ));
+        }
+        if st.param_noise.is_some() != off.param_noise.is_some() {
+            return Err(AgentError::Checkpoint(
+                "parameter noise state does not match the config".into(),
+            ));
+        }
+        if let Some(pn) = st.param_noise.as_ref().filter(|p| !p.acting.is_empty()) {
+            agent
+                .set_exploring_params(Some(&pn.acting))
+                .map_err(|e| AgentError::Checkpoint(format!("parameter noise: {e}")))?;
+        }
+        let mut act_state = agent.initial_state(n);
+        let sd = agent.state_dim();
+        if st.actor_state.len() != n * sd {
+            return Err(AgentError::Checkpoint(
+                "actor state size does not match".into(),
+            ));
+        }
+        for i in 0..n {
+            if sd > 0 {
+                act_state.set_env_state(i, &st.actor_state[i * sd..(i + 1) * sd]);
+            }
+        }
+        Ok(Self {
+            cfg,
+            off,
+            agent,
+            replay,
+            collector,
+            act_state,
+            st,
+        })
+    }
+
+    /// The agent being trained.
+    pub fn agent(&self) -> &RdpgAgent {
+        &self.agent
+    }
+
+    /// The agent being trained, mutably (e.g. to switch on [`RdpgAgent::set_profiling`]).
+    pub fn agent_mut(&mut self) -> &mut RdpgAgent {
+        &mut self.agent
+    }
+
+    /// The off-policy settings.
+    pub fn off_policy(&self) -> &OffPolicyConfig {
+        &self.off
+    }
+
+    /// The replay buffer.
+    pub fn replay(&self) -> &EpisodicReplay {
+        &self.replay
+    }
+
+    /// σ of the parameter noise (`None` without parameter noise).
+    pub fn param_noise_stddev(&self) -> Option<f64> {
+        self.st.param_noise.as_ref().map(|p| p.noise.sigma)
+    }
+
+    /// Algorithm 1's `Noise()`: when due, adapts σ to the distance the current perturbation
+    /// makes and explores from now on with a freshly perturbed copy of the trained actor.
+    fn perturb_actor_if_due(&mut self) -> Result<()> {
+        let Some(pn) = self.st.param_noise.as_mut() else {
+            return Ok(());
+        };
+        let steps = self.collector.steps();
+        if steps < pn.next_perturb {
+            return Ok(());
+        }
+        if !pn.acting.is_empty() {
+            if let Some(b) = self.replay.sample(&mut self.st.rng, 64, 0, 1) {
+                // obs [n, 2, obs_dim]: the first step of each window.
+                let d = b.obs_dim;
+                let obs: Vec<f32> = (0..b.n)
+                    .flat_map(|i| b.obs[i * 2 * d..i * 2 * d + d].iter().copied())
+                    .collect();
+                let perturbed = self
+                    .agent
+                    .act_exploring(&obs, &mut self.agent.initial_state(b.n));
+                let clean = self.agent.act(&obs, &mut self.agent.initial_state(b.n));
+                pn.noise.adapt(action_distance(&perturbed, &clean));
+            }
+        }
+        let mut params = self.agent.actor_params();
+        pn.noise.perturb(&mut params, &mut self.st.rng);
+        self.agent.set_exploring_params(Some(&params))?;
+        pn.acting = params;
+        pn.next_perturb = steps + self.off.param_noise.map_or(1, |p| p.every_steps);
+        Ok(())
+    }
+
+    /// Algorithm 1's `Update()` on sampled sub-trajectories, as many as the update rate has
+    /// accrued.
+    fn update_as_due(&mut self, n: usize, obs_cb: &mut dyn TrainObserver) {
+        self.st.update_debt += self.off.updates_per_step * n as f64;
+        let c = self.agent.config();
+        let (b, s, l) = (c.batch_size, c.scan_len, c.opt_len);
+        let steps = self.collector.steps();
+        while self.st.update_debt >= 1.0 {
+            self.st.update_debt -= 1.0;
+            let rng = &mut self.st.rng;
+            let sampled = match &self.off.injection {
+                // A share of the windows from teacher episodes, annealed to 0.
+                Some(inj) => self.replay.sample_mixed(rng, b, s, l, inj.share(steps)),
+                None => self.replay.sample(rng, b, s, l),
+            };
+            let Some(batch) = sampled else {
+                break;
+            };
+            let stats = self.agent.update(&batch);
+            obs_cb.on_update(steps, &stats);
+        }
+    }
+}
+
+impl Trainer for OffPolicyTrainer {
+    fn run(&mut self, until: u64, obs_cb: &mut dyn TrainObserver) -> Result<u64> {
+        let until = until.min(self.cfg.total_steps);
+        let n = self.cfg.num_envs;
+        let act_dim = self.agent.act_dim();
+        let stored = self.replay.config().state_dim > 0;
+        while self.collector.steps() < until {
+            if obs_cb.should_stop(self.collector.steps()) {
+                break;
+            }
+            // Acting: a_t = mu(o_t, h_{t-1}) + N_t (Algorithm 1), uniform during warm-up.
+            let states: Vec<Vec<f32>> = if stored {
+                (0..n).map(|i| self.act_state.env_state(i)).collect()
+            } else {
+                vec![Vec::new(); n]
+            };
+            let warm = self.collector.steps() < self.off.warmup_steps;
+            if !warm {
+                self.perturb_actor_if_due()?;
+            }
+            let flat: Vec<f32> = self.collector.obs().concat();
+            let mu = self.agent.act_exploring(&flat, &mut self.act_state);
+            let actions: Vec<Vec<f32>> = (0..n)
+                .map(|i| {
+                    if warm {
+                        (0..act_dim)
+                            .map(|_| self.st.rng.uniform(-1.0, 1.0) as f32)
+                            .collect()
+                    } else {
+                        let eps = self.st.noise[i].sample(&mut self.st.rng);
+                        mu[i * act_dim..(i + 1) * act_dim]
+                            .iter()
+                            .zip(eps)
+                            .map(|(m, e)| (m + e).clamp(-1.0, 1.0))
+                            .collect()
+                    }
+                })
+                .collect();
+            let transitions = self.collector.step(&actions)?;
+            for (i, t) in transitions.into_iter().enumerate() {
+                let s = t.step;
+                let buf = &mut self.st.buffers[i];
+                buf.obs
+                    .extend_from_slice(s.final_obs.as_ref().unwrap_or(&s.obs));
+                buf.actions.extend_from_slice(&actions[i]);
+                buf.rewards.push(s.reward as f32);
+                buf.states.extend_from_slice(&states[i]);
+                if let Some(rec) = t.finished {
+                    let done = std::mem::replace(
+                        buf,
+                        EpisodeBuffer {
+                            obs: s.obs,
+                            ..Default::default()
+                        },
+                    );
+                    self.replay
+                        .add_episode(Episode {
+                            obs: done.obs,
+                            actions: done.actions,
+                            rewards: done.rewards,
+                            states: done.states,
+                            terminated: s.terminated,
+                            truncated: s.truncated && !s.terminated,
+                            injected: false,
+                        })
+                        .map_err(|e| AgentError::Config {
+                            field: "replay",
+                            reason: e.to_string(),
+                        })?;
+                    self.agent.reset_state(&mut self.act_state, Some(i));
+                    self.st.noise[i].reset();
+                    obs_cb.on_episode(&rec);
+                }
+            }
+            if !warm && self.replay.num_episodes() > 0 {
+                self.update_as_due(n, obs_cb);
+            }
+            if self.collector.eval_due() {
+                let rec = self.evaluate()?;
+                obs_cb.on_eval(&rec);
+            }
+        }
+        Ok(self.collector.steps())
+    }
+
+    fn evaluate(&mut self) -> Result<EvalRecord> {
+        let (episodes, seed) = (self.cfg.eval_episodes, self.cfg.eval_seed);
+        let mut rec =
+            evaluate_policy(&mut RdpgPolicy::new(&self.agent), &self.cfg, episodes, seed)?;
+        rec.step = self.collector.steps();
+        Ok(rec)
+    }
+
+    fn save(&mut self, dir: &Path) -> Result<()> {
+        std::fs::create_dir_all(dir).map_err(|e| ckpt_err(dir, e))?;
+        Header::write(dir, TrainerKind::OffPolicy)?;
+        self.agent.save(dir.join("agent"))?;
+        self.st.actor_state = self.act_state.to_vec();
+        write_bin(&dir.join("replay.bin"), &self.replay)?;
+        write_bin(&dir.join("loop.bin"), &self.st)?;
+        write_bin(&dir.join("collector.bin"), self.collector.state())?;
+        write_json(&dir.join("train.json"), &self.cfg)?;
+        write_json(&dir.join("off_policy.json"), &self.off)
+    }
+
+    fn save_agent(&self, dir: &Path) -> Result<()> {
+        self.agent.save(dir)
+    }
+
+    fn steps(&self) -> u64 {
+        self.collector.steps()
+    }
+
+    fn updates(&self) -> u64 {
+        self.agent.updates()
+    }
+
+    fn set_total_steps(&mut self, total: u64) {
+        self.cfg.total_steps = total;
+    }
+
+    fn config(&self) -> &TrainConfig {
+        &self.cfg
+    }
+}
+
+/// An [`RdpgAgent`] (owned or borrowed) as a [`DeterministicPolicy`]: the trained actor with
+/// its own recurrent state.
+pub struct RdpgPolicy<A> {
+    agent: A,
+    state: ActorState,
+}
+
+impl<A: Borrow<RdpgAgent>> RdpgPolicy<A> {
+    /// Wraps `agent` (`RdpgAgent` or `&RdpgAgent`).
+    pub fn new(agent: A) -> Self {
+        let state = agent.borrow().initial_state(1);
+        Self { agent, state }
+    }
+}
+
+impl<A: Borrow<RdpgAgent>> DeterministicPolicy for RdpgPolicy<A> {
+    fn begin_episode(&mut self) {
+        self.state = self.agent.borrow().initial_state(1);
+    }
+    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
+        self.agent.borrow().act(obs, &mut self.state)
+    }
+}
+
+fn make_noise(cfg: &ExplorationConfig, dim: usize) -> ActionNoise {
+    match *cfg {
+        ExplorationConfig::None => ActionNoise::None { dim },
+        ExplorationConfig::Ou { theta, sigma } => ActionNoise::Ou(OrnsteinUhlenbeck::new(
+            dim,
+            OuConfig {
+                theta,
+                sigma,
+                ..OuConfig::default()
+            },
+        )),
+        ExplorationConfig::Gaussian { sigma } => ActionNoise::Gaussian(Gaussian::new(dim, sigma)),
+    }
+}

@@ -1,0 +1,587 @@
+//! The update of Algorithm 1 (`Update`), top to bottom.
+//!
+//! # The update, top to bottom
+//!
+//! A [`SequenceBatch`] holds `N` windows; window `n` has `scan_len[n] <= s` real scan steps
+//! (left-padded), `len_n = opt_len[n] <= l` real optimisation steps (right-padded) and the
+//! bootstrap ("tail") observation `o_tail` right after its last real step.
+//!
+//! 1. **Scan** (paper Eq. (scan)): `h_{-1} = f((o_t, a_t)_{t = -scan_len..-1} | h_init)` for the
+//!    actor (observations) and the critic (observation-action pairs), without gradient, from
+//!    `h_init = 0` (or the acting-time state stored in the replay, actor only). Padding never
+//!    touches the state ([`scan_state`]).
+//! 2. **Critic** (paper Eq. (unsyncedinterpolatedTD), Algorithm 1 line "Get TD gradient"): the
+//!    tail-step bootstrap
+//!    `y_i = sum_{k=i}^{len-1} gamma^{k-i} r_k + gamma^{len-i} Q'(o_tail, mu'(o_tail)) (1 - term)`,
+//!    i.e. every step bootstraps from the single Q at the window's tail (`^{(l-i)}TD_i`);
+//!    `Q'`, `mu'` are the target networks when `tau > 0`, else the behaviour networks without
+//!    gradient; both run along the window from their scanned states. Loss:
+//!    `1/N sum_n sum_{i < min(u, len_n)} w_i (y_i - Q(o_i, a_i | h_{i-1}))^2` with
+//!    `w_i = lambda^i / sum_{j<u} lambda^j` (uniform for `lambda = 1`; the same for every
+//!    window, not renormalised for short windows: `rdpg_core::targets`); the critic is
+//!    back-propagated through time over the window (the "optimisation length"). Adam with L2.
+//! 3. **Actor** (paper Eq. (DPG), Algorithm 1 line "Get Actor gradient"):
+//!    `J = -1/N sum_n 1/len_n sum_{i < len_n} Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})`. Without
+//!    BPTT (paper Section III-A.3, the default) the actor state `h^A_{i-1}` fed to step `i` is a
+//!    constant: the actor is run along the window without gradient to get the states, then every
+//!    step is recomputed from its detached previous state in one batched call over `N * l`.
+//!    The critic states `h^C_{i-1}` come from the critic's scan and its run along the replayed
+//!    actions (after the critic's Adam step by default, as Algorithm 1 orders it).
+//! 4. **Targets**: `theta' <- theta' + tau (theta - theta')` when `tau > 0`.
+
+use std::time::Instant;
+
+use rdpg_core::targets::interpolated_td_weights_padded;
+use rdpg_core::SequenceBatch;
+use serde::{Deserialize, Serialize};
+use tch::Tensor;
+
+use super::agent::RdpgAgent;
+use super::lstm::{scan_state, RecState};
+use super::nets::{Actor, Critic};
+use crate::common::UpdateStats;
+
+/// Wall-clock seconds spent in each phase of the updates since profiling was switched on
+/// (meaningful on the CPU, where libtorch runs synchronously).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct PhaseTimes {
+    /// Updates measured.
+    pub updates: u64,
+    /// Batch upload and index tensors.
+    pub prepare: f64,
+    /// The no-gradient scans of step 1 (all networks, target networks included).
+    pub scan: f64,
+    /// No-gradient runs along the window: tail action, actor states, target critics.
+    pub window_nograd: f64,
+    /// Critic forward with gradient, backward, clipping and Adam step.
+    pub critic_step: f64,
+    /// The critic rescan and state run after its step (`actor_uses_updated_critic`).
+    pub critic_rescan: f64,
+    /// Actor forward, backward and Adam step.
+    pub actor_step: f64,
+    /// Soft target update and statistics.
+    pub other: f64,
+}
+
+impl RdpgAgent {
+    /// Switches per-phase timing on (resetting it) or off.
+    pub fn set_profiling(&mut self, on: bool) {
+        self.profile = on.then(PhaseTimes::default);
+    }
+
+    /// The per-phase timings accumulated since profiling was switched on.
+    pub fn profile(&self) -> Option<PhaseTimes> {
+        self.profile
+    }
+
+    /// One RDPG update (Algorithm 1, `Update`) on `batch`. See the module docs for the steps.
+    ///
+    /// # Panics
+    /// If the batch does not fit the agent ([`RdpgAgent::check_batch`] fails).
+    pub fn update(&mut self, batch: &SequenceBatch) -> UpdateStats {
+        if let Err(e) = self.check_batch(batch) {
+            panic!("RdpgAgent::update: {e}");
+        }
+        if self.cfg.flush_denormal {
+            crate::common::tensor::set_flush_denormal(true);
+        }
+        let mut clock = Clock::new(self.profile.is_some());
+        let p = self.prepare(batch);
+        clock.lap(|t| &mut t.prepare);
+
+        // ---- 1. Scan: h_{-1} for every network, no gradient (paper Eq. (scan)). -------------
+        let sc = tch::no_grad(|| self.scan_all(&p));
+        clock.lap(|t| &mut t.scan);
+
+        // ---- 2a. Along the window without gradient: the behaviour actor's states (for the
+        // per-step actor gradient) and the bootstrap action mu'(o_tail) (+ smoothing noise);
+        // with target networks also Q'(o_tail, mu'(o_tail)). -----------------------------------
+        let (actor_states, mut a_tail) = tch::no_grad(|| self.actor_window(&p, &sc));
+        if let Some(noise) = self.cfg.target_noise {
+            a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
+        }
+        let target_q_tail = tch::no_grad(|| self.target_tail_q(&p, &sc, &a_tail));
+        clock.lap(|t| &mut t.window_nograd);
+
+        // ---- 2b. Critic: tail-step bootstrap of the interpolated TD (Eq. (unsynced...)). ---
+        let (q_sa, q_tail) = self.critic_forward(&p, &sc, &a_tail, target_q_tail);
+        let y = tch::no_grad(|| td_targets(&p, &q_tail)); // [N, l]
+        let critic_loss = q_sa
+            .iter()
+            .map(|q| critic_loss_from(&p, q, &y))
+            .reduce(|a, b| a + b)
+            .expect("at least one critic");
+        self.critic_opt.zero_grad();
+        critic_loss.backward();
+        if let Some(c) = self.cfg.grad_clip {
+            let _ = self.critic_opt.clip_grad_norm(c);
+        }
+        let updated_critic = self.cfg.actor_uses_updated_critic;
+        // Critic states h^C_{i-1} along the window for the actor loss: from the pre-update
+        // critic, or (Algorithm 1 order) rescanned after its Adam step.
+        let critic_states_old =
+            (!updated_critic).then(|| tch::no_grad(|| self.critic_states(&p, &sc.critics[0])));
+        if updated_critic {
+            self.critic_opt.step();
+        }
+        clock.lap(|t| &mut t.critic_step);
+
+        // ---- 3. Actor: deterministic policy gradient (Eq. (DPG)), no BPTT by default. ------
+        let critic_states = match critic_states_old {
+            Some(s) => s,
+            None => tch::no_grad(|| {
+                let h = self.scan_critic(&self.critics[0], &p);
+                self.critic_states(&p, &h)
+            }),
+        };
+        clock.lap(|t| &mut t.critic_rescan);
+        let actor_in = match &actor_states {
+            Some((hb, cb)) => ActorInput::Detached { h: hb, c: cb },
+            None => ActorInput::Bptt { h0: &sc.actor },
+        };
+        // The critic is a constant here: no gradients are computed or accumulated for it.
+        for vs in &mut self.critic_vs {
+            vs.freeze();
+        }
+        let actor_loss = actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
+        self.actor_opt.zero_grad();
+        actor_loss.backward();
+        for vs in &mut self.critic_vs {
+            vs.unfreeze();
+        }
+        if let Some(c) = self.cfg.grad_clip {
+            let _ = self.actor_opt.clip_grad_norm(c);
+        }
+        if !updated_critic {
+            self.critic_opt.step();
+        }
+        self.actor_opt.step();
+        clock.lap(|t| &mut t.actor_step);
+
+        // ---- 4. Soft target update theta' <- theta' + tau (theta - theta'). ---------------
+        if let Some(t) = &mut self.targets {
+            let tau = self.cfg.tau;
+            tch::no_grad(|| {
+                for (tv, sv) in &mut t.pairs {
+                    let _ = tv.lerp_(sv, tau);
+                }
+            });
+        }
+        self.updates += 1;
+        let q_mean = tch::no_grad(|| (&q_sa[0] * &p.mask).sum(self.kind) / p.mask.sum(self.kind));
+        let stats = UpdateStats {
+            critic_loss: critic_loss.double_value(&[]),
+            actor_loss: actor_loss.double_value(&[]),
+            q_mean: q_mean.double_value(&[]),
+        };
+        clock.lap(|t| &mut t.other);
+        if let Some(pt) = &mut self.profile {
+            clock.add_into(pt);
+            pt.updates += 1;
+        }
+        stats
+    }
+
+    /// Step 2a (call without gradient): runs the behaviour actor along the window (`l + 1`
+    /// slots) from its scanned state. Returns its states before each optimisation step
+    /// (`[N, l, H]` each; only when the actor gradient is per step, i.e. no BPTT) and the
+    /// bootstrap action `mu'(o_tail)`, `[N, A]` (from the target actor when there is one).
+    pub(super) fn actor_window(
+        &self,
+        p: &Prepared,
+        sc: &Scanned,
+    ) -> (Option<(Tensor, Tensor)>, Tensor) {
+        let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+        let xa = self.actor.input_seq(&p.obs_win); // [N, l+1, E]
+        let (ya, states) = if need_states {
+            let (ya, hb, cb, _) = self.actor.core.stepwise(&xa, &sc.actor);
+            (ya, Some((hb.narrow(1, 0, p.l), cb.narrow(1, 0, p.l))))
+        } else {
+            (self.actor.core.seq(&xa, &sc.actor).0, None)
+        };
+        let a_tail = match (&self.targets, &sc.target_actor) {
+            (Some(t), Some(h)) => tail_action(&t.actor, p, h),
+            // The output at the tail slot `len_n` is mu(o_tail | h_{len-1}).
+            _ => (self.actor.head(&ya) * p.tail_onehot.unsqueeze(-1))
+                .sum_dim_intlist(1, false, self.kind),
+        };
+        (states, a_tail)
+    }
+
+    /// With target networks (`tau > 0`): `Q'(o_tail, a_tail)` from the target critics' own
+    /// scans and window runs, the minimum over twin critics, `[N]`; `None` without targets.
+    pub(super) fn target_tail_q(
+        &self,
+        p: &Prepared,
+        sc: &Scanned,
+        a_tail: &Tensor,
+    ) -> Option<Tensor> {
+        self.targets.as_ref().map(|t| {
+            let qs: Vec<Tensor> = t
+                .critics
+                .iter()
+                .zip(&sc.target_critics)
+                .map(|(c, h)| tail_q(p, &critic_window(c, p, h, Some(a_tail))))
+                .collect();
+            min_all(&qs)
+        })
+    }
+
+    /// Step 2b's forward pass (with gradient): `Q(o_i, a_i | h_{i-1})` of every critic along
+    /// the window, `[N, l]` each, and the bootstrap value `[N]`. Without target networks each
+    /// critic's run continues one step into the tail slot with `a_tail`; that output,
+    /// detached (minimum over twins), is the bootstrap.
+    pub(super) fn critic_forward(
+        &self,
+        p: &Prepared,
+        sc: &Scanned,
+        a_tail: &Tensor,
+        target_q_tail: Option<Tensor>,
+    ) -> (Vec<Tensor>, Tensor) {
+        let with_tail = target_q_tail.is_none();
+        let qs: Vec<Tensor> = self
+            .critics
+            .iter()
+            .zip(&sc.critics)
+            .map(|(c, h)| critic_window(c, p, h, with_tail.then_some(a_tail)))
+            .collect(); // each [N, l (+1)]
+        let q_tail = match target_q_tail {
+            Some(q) => q,
+            None => min_all(&qs.iter().map(|q| tail_q(p, q).detach()).collect::<Vec<_>>()),
+        };
+        (qs.iter().map(|q| q.narrow(1, 0, p.l)).collect(), q_tail)
+    }
+
+    /// Clipped Gaussian noise on the bootstrap action (target policy smoothing), drawn from the
+    /// agent's own generator so that checkpoints resume identically.
+    pub(super) fn smooth_target_action(&mut self, a: &Tensor, std: f64, clip: f64) -> Tensor {
+        let n = a.numel();
+        let noise: Vec<f32> = (0..n)
+            .map(|_| (self.rng.normal(0.0, std)).clamp(-clip, clip) as f32)
+            .collect();
+        let noise = Tensor::from_slice(&noise)
+            .view(a.size().as_slice())
+            .to_kind(self.kind)
+            .to_device(self.device);
+        (a + noise).clamp(-1.0, 1.0)
+    }
+
+    /// Uploads the batch and builds the small index/weight tensors of the update.
+    pub(super) fn prepare(&self, b: &SequenceBatch) -> Prepared {
+        let (n, s, l) = (b.n as i64, b.scan as i64, b.opt as i64);
+        let (d, a) = (b.obs_dim as i64, b.act_dim as i64);
+        let up = |v: &[f32], shape: &[i64]| -> Tensor {
+            Tensor::from_slice(v)
+                .view(shape)
+                .to_kind(self.kind)
+                .to_device(self.device)
+        };
+        let up64 = |v: Vec<f64>, shape: &[i64]| -> Tensor {
+            Tensor::from_slice(&v)
+                .view(shape)
+                .to_kind(self.kind)
+                .to_device(self.device)
+        };
+        let obs = up(&b.obs, &[n, s + l + 1, d]);
+        let actions = up(&b.actions, &[n, s + l, a]);
+        let rewards = up(&b.rewards, &[n, s + l]);
+        let gamma = self.cfg.gamma;
+        let u = self.cfg.update_len.min(b.opt);
+        let (nn, ll) = (b.n, b.opt);
+        // lambda^i / sum_{j<u} lambda^j on the first u steps, shared by all windows (padded
+        // steps drop out, short windows are not renormalised): rdpg-core's reference.
+        let td_w = interpolated_td_weights_padded(ll, u, self.cfg.lambda);
+        let mut onehot = vec![0.0; nn * (ll + 1)];
+        let mut mask = vec![0.0; nn * ll];
+        let mut boot_coef = vec![0.0; nn * ll];
+        let mut critic_w = vec![0.0; nn * ll];
+        let mut actor_w = vec![0.0; nn * ll];
+        let mut not_term = vec![0.0; nn];
+        for i in 0..nn {
+            let len = b.opt_len[i];
+            onehot[i * (ll + 1) + len] = 1.0;
+            not_term[i] = 1.0 - f64::from(b.tail_terminated[i]);
+            for j in 0..len {
+                mask[i * ll + j] = 1.0;
+                boot_coef[i * ll + j] = gamma.powi((len - j) as i32);
+                actor_w[i * ll + j] = 1.0 / len as f64;
+                critic_w[i * ll + j] = td_w[j];
+            }
+        }
+        // disc[k, i] = gamma^(k - i) for k >= i: (r * mask) @ disc = discounted reward sums.
+        let mut disc = vec![0.0; ll * ll];
+        for k in 0..ll {
+            for i in 0..=k {
+                disc[k * ll + i] = gamma.powi((k - i) as i32);
+            }
+        }
+        let stored = match (&b.stored_state, self.cfg.burn_in_from_stored_state) {
+            (Some(st), true) if s > 0 => {
+                let h = self.actor.core.state_width();
+                let t = up(st, &[n, 2 * h]);
+                Some(RecState {
+                    h: t.narrow(1, 0, h).unsqueeze(0).contiguous(),
+                    c: t.narrow(1, h, h).unsqueeze(0).contiguous(),
+                })
+            }
+            _ => None,
+        };
+        Prepared {
+            n,
+            s,
+            l,
+            obs_scan: obs.narrow(1, 0, s),
+            act_scan: actions.narrow(1, 0, s),
+            obs_win: obs.narrow(1, s, l + 1),
+            act_win: actions.narrow(1, s, l),
+            rew: rewards.narrow(1, s, l),
+            mask: up64(mask, &[n, l]),
+            tail_onehot: up64(onehot, &[n, l + 1]),
+            not_term: up64(not_term, &[n]),
+            boot_coef: up64(boot_coef, &[n, l]),
+            disc: up64(disc, &[l, l]),
+            critic_w: up64(critic_w, &[n, l]),
+            actor_w: up64(actor_w, &[n, l]),
+            scan_len: b.scan_len.clone(),
+            stored,
+        }
+    }
+
+    /// Step 1 for every network (call without gradient).
+    pub(super) fn scan_all(&self, p: &Prepared) -> Scanned {
+        let actor_init = match &p.stored {
+            Some(st) => st.shallow_clone(),
+            None => self.actor.core.zero_state(p.n, self.kind, self.device),
+        };
+        let actor = self.scan_actor(&self.actor, p, &actor_init);
+        let critics = self
+            .critics
+            .iter()
+            .map(|c| self.scan_critic(c, p))
+            .collect();
+        let (target_actor, target_critics) = match &self.targets {
+            Some(t) => (
+                Some(self.scan_actor(&t.actor, p, &actor_init)),
+                t.critics.iter().map(|c| self.scan_critic(c, p)).collect(),
+            ),
+            None => (None, Vec::new()),
+        };
+        Scanned {
+            actor,
+            critics,
+            target_actor,
+            target_critics,
+        }
+    }
+
+    pub(super) fn scan_actor(&self, actor: &Actor, p: &Prepared, init: &RecState) -> RecState {
+        if p.s == 0 || !actor.core.is_recurrent() {
+            return init.shallow_clone();
+        }
+        let x = actor.input_seq(&p.obs_scan);
+        scan_state(&actor.core, &x, &p.scan_len, init, self.cfg.scan_method)
+    }
+
+    pub(super) fn scan_critic(&self, critic: &Critic, p: &Prepared) -> RecState {
+        let init = critic.core.zero_state(p.n, self.kind, self.device);
+        if p.s == 0 || !critic.core.is_recurrent() {
+            return init;
+        }
+        let x = critic.input_seq(&p.obs_scan, &p.act_scan);
+        scan_state(&critic.core, &x, &p.scan_len, &init, self.cfg.scan_method)
+    }
+
+    /// The critic's states before each optimisation step along the replayed actions
+    /// (`h_{i-1}`, `c_{i-1}`, each `[N, l, H]`), from its scanned state (call without
+    /// gradient).
+    pub(super) fn critic_states(&self, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
+        let critic = &self.critics[0];
+        let x = critic.input_seq(&p.obs_win.narrow(1, 0, p.l), &p.act_win);
+        let (_, hb, cb, _) = critic.core.stepwise(&x, h);
+        (hb, cb)
+    }
+}
+
+/// The batch on the device, split into the scan part and the optimisation window.
+pub(super) struct Prepared {
+    pub(super) n: i64,
+    pub(super) s: i64,
+    pub(super) l: i64,
+    /// `[N, s, D]`, `[N, s, A]`: the scan part.
+    pub(super) obs_scan: Tensor,
+    pub(super) act_scan: Tensor,
+    /// `[N, l + 1, D]`: the window's observations plus the slot that holds `o_tail` for
+    /// full windows (shorter windows have it at `len`, inside the window).
+    pub(super) obs_win: Tensor,
+    /// `[N, l, A]`, `[N, l]`: replayed actions and rewards of the window.
+    pub(super) act_win: Tensor,
+    pub(super) rew: Tensor,
+    /// `[N, l]`: 1 on real steps.
+    pub(super) mask: Tensor,
+    /// `[N, l + 1]`: 1 at the tail position `len_n`.
+    pub(super) tail_onehot: Tensor,
+    /// `[N]`: `1 - tail_terminated`.
+    pub(super) not_term: Tensor,
+    /// `[N, l]`: `gamma^(len - i)` on real steps.
+    pub(super) boot_coef: Tensor,
+    /// `[l, l]`: `gamma^(k - i)` for `k >= i`.
+    pub(super) disc: Tensor,
+    /// `[N, l]`: `lambda^i / sum_{j<u} lambda^j` on real steps among the first `u`.
+    pub(super) critic_w: Tensor,
+    /// `[N, l]`: `1 / len` on real steps.
+    pub(super) actor_w: Tensor,
+    pub(super) scan_len: Vec<usize>,
+    /// Stored acting-time actor states `[1, N, H]` (when burning in from them).
+    pub(super) stored: Option<RecState>,
+}
+
+/// `h_{-1}` of every network.
+pub(super) struct Scanned {
+    pub(super) actor: RecState,
+    pub(super) critics: Vec<RecState>,
+    pub(super) target_actor: Option<RecState>,
+    pub(super) target_critics: Vec<RecState>,
+}
+
+/// The critic along the window from its scanned state: `Q(o_i, a_i | h_{i-1})` for the
+/// replayed actions, `[N, l]`; with `a_tail`, one more slot where the tail position `len_n`
+/// holds `Q(o_tail, a_tail | h_{len-1})`, `[N, l + 1]`.
+pub(super) fn critic_window(
+    critic: &Critic,
+    p: &Prepared,
+    h: &RecState,
+    a_tail: Option<&Tensor>,
+) -> Tensor {
+    let (obs, act) = match a_tail {
+        Some(at) => {
+            let n = p.n;
+            let a_dim = p.act_win.size()[2];
+            let pad = Tensor::zeros([n, 1, a_dim], (p.act_win.kind(), p.act_win.device()));
+            let ext = Tensor::cat(&[&p.act_win, &pad], 1); // [N, l+1, A], zero past len
+            let oh = p.tail_onehot.unsqueeze(-1); // [N, l+1, 1]
+            (
+                p.obs_win.shallow_clone(),
+                &ext * (1.0 - &oh) + at.unsqueeze(1) * oh,
+            )
+        }
+        None => (p.obs_win.narrow(1, 0, p.l), p.act_win.shallow_clone()),
+    };
+    critic.forward_seq(&obs, &act, h).0
+}
+
+/// The value at each window's tail position: `q_ext [N, l + 1]` -> `[N]`.
+pub(super) fn tail_q(p: &Prepared, q_ext: &Tensor) -> Tensor {
+    (q_ext * &p.tail_onehot).sum_dim_intlist(1, false, q_ext.kind())
+}
+
+/// `mu'(o_tail)` of `actor` from its scanned state: `[N, A]`.
+pub(super) fn tail_action(actor: &Actor, p: &Prepared, h: &RecState) -> Tensor {
+    let (mu, _) = actor.forward_seq(&p.obs_win, h); // [N, l+1, A]
+    (mu * p.tail_onehot.unsqueeze(-1)).sum_dim_intlist(1, false, p.obs_win.kind())
+}
+
+/// Element-wise minimum of one or two tensors.
+pub(super) fn min_all(ts: &[Tensor]) -> Tensor {
+    let mut m = ts[0].shallow_clone();
+    for t in &ts[1..] {
+        m = m.minimum(t);
+    }
+    m
+}
+
+/// Tail-step bootstrap targets, `[N, l]`:
+/// `y_i = sum_{k=i}^{len-1} gamma^{k-i} r_k + gamma^{len-i} q_tail (1 - term)` on real steps,
+/// 0 on padding.
+pub(super) fn td_targets(p: &Prepared, q_tail: &Tensor) -> Tensor {
+    let returns = (&p.rew * &p.mask).matmul(&p.disc); // [N, l]
+    returns + &p.boot_coef * (q_tail * &p.not_term).unsqueeze(1)
+}
+
+/// `1/N sum_n sum_i w_{n,i} (y_{n,i} - q_{n,i})^2` (paper Eq. (unsyncedinterpolatedTD)).
+pub(super) fn critic_loss_from(p: &Prepared, q_sa: &Tensor, y: &Tensor) -> Tensor {
+    (&p.critic_w * (y - q_sa).square()).sum(q_sa.kind()) / p.n as f64
+}
+
+/// Where the actor's recurrent input comes from in the actor loss.
+pub(super) enum ActorInput<'a> {
+    /// No BPTT: the states before each step (`[N, l, H]`), constants.
+    Detached { h: &'a Tensor, c: &'a Tensor },
+    /// BPTT: run the actor with gradient along the window from its scanned state.
+    Bptt { h0: &'a RecState },
+}
+
+/// `-1/N sum_n 1/len_n sum_i Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})` (paper Eq. (DPG)).
+/// `critic_states` are the critic's `(h_{i-1}, c_{i-1})`, `[N, l, Hc]`.
+pub(super) fn actor_loss(
+    actor: &Actor,
+    critic: &Critic,
+    p: &Prepared,
+    input: ActorInput<'_>,
+    critic_states: &(Tensor, Tensor),
+) -> Tensor {
+    let (n, l) = (p.n, p.l);
+    let obs = p.obs_win.narrow(1, 0, l); // [N, l, D]
+    let d = obs.size()[2];
+    let obs_flat = obs.reshape([n * l, d]); // [N*l, D]
+    let a = match input {
+        ActorInput::Detached { h, c } => {
+            // Every step from its own (constant) previous state: one batched LSTM cell over
+            // N*l rows.
+            let ha = h.size()[2];
+            let st = RecState {
+                h: h.reshape([1, n * l, ha]),
+                c: c.reshape([1, n * l, ha]),
+            };
+            let (y, _) = actor.core.step(&actor.trunk.forward(&obs_flat), &st);
+            actor.head(&y) // [N*l, A]
+        }
+        ActorInput::Bptt { h0 } => {
+            let (a, _) = actor.forward_seq(&obs, h0); // [N, l, A]
+            let a_dim = a.size()[2];
+            a.reshape([n * l, a_dim])
+        }
+    };
+    // Q(o_i, a_i | h^C_{i-1}): one critic cell step per (window, step) from its carried state.
+    let hc = critic_states.0.size()[2];
+    let stc = RecState {
+        h: critic_states.0.reshape([1, n * l, hc]),
+        c: critic_states.1.reshape([1, n * l, hc]),
+    };
+    let (q, _) = critic.step(&obs_flat, &a, &stc); // [N*l]
+    -(q.reshape([n, l]) * &p.actor_w).sum(a.kind()) / n as f64
+}
+
+/// Per-phase stopwatch (no-op when profiling is off).
+struct Clock {
+    on: bool,
+    last: Instant,
+    acc: PhaseTimes,
+}
+
+impl Clock {
+    fn new(on: bool) -> Self {
+        Self {
+            on,
+            last: Instant::now(),
+            acc: PhaseTimes::default(),
+        }
+    }
+
+    fn lap(&mut self, field: impl FnOnce(&mut PhaseTimes) -> &mut f64) {
+        if self.on {
+            let now = Instant::now();
+            *field(&mut self.acc) += (now - self.last).as_secs_f64();
+            self.last = now;
+        }
+    }
+
+    fn add_into(&self, t: &mut PhaseTimes) {
+        t.prepare += self.acc.prepare;
+        t.scan += self.acc.scan;
+        t.window_nograd += self.acc.window_nograd;
+        t.critic_step += self.acc.critic_step;
+        t.critic_rescan += self.acc.critic_rescan;
+        t.actor_step += self.acc.actor_step;
+        t.other += self.acc.other;
+    }
+}

@@ -1,0 +1,535 @@
+//! The run directory: the one place that knows its layout, its metric rows, its summary and
+//! the moving average of training returns.
+//!
+//! A run directory holds:
+//! - `config.toml`: the resolved experiment (every default written out);
+//! - `metrics.jsonl`: one object per finished training episode (`"kind":"episode"`) and per
+//!   evaluation (`"kind":"eval"`), with the same rows in `episodes.csv` and `evals.csv`;
+//! - `checkpoints/latest/`: the full training state (networks, optimiser, replay, RNGs,
+//!   environments), which `--resume` continues from; `checkpoints/best/`: the agent of the best
+//!   evaluation (`agent/`) and that evaluation (`eval.json`);
+//! - `summary.json`: the run's headline numbers, each named by its reward and metric;
+//! - `tb/`: the same metrics as TensorBoard scalars (`tensorboard --logdir runs/`).
+
+use std::collections::VecDeque;
+use std::fs::File;
+use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::ValueEnum;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rdpg_agents::{DeterministicPolicy, EvalRecord};
+use serde::{Deserialize, Serialize};
+use syntaxdot_summary::SummaryWriter;
+
+use crate::experiment::Experiment;
+
+/// Which agent of a run: the best evaluation so far, or the latest checkpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Which {
+    /// `checkpoints/best`: the agent of the best evaluation.
+    Best,
+    /// `checkpoints/latest`: the agent of the last checkpoint.
+    Latest,
+}
+
+impl Which {
+    /// The checkpoint's directory name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Which::Best => "best",
+            Which::Latest => "latest",
+        }
+    }
+}
+
+/// The paths of a run directory.
+#[derive(Debug, Clone)]
+pub struct RunDir {
+    root: PathBuf,
+}
+
+impl RunDir {
+    /// The run directory at `root` (nothing is read or created).
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+
+    /// The directory itself.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// `config.toml`: the resolved experiment.
+    pub fn config(&self) -> PathBuf {
+        self.root.join("config.toml")
+    }
+
+    /// `summary.json`.
+    pub fn summary(&self) -> PathBuf {
+        self.root.join("summary.json")
+    }
+
+    /// `metrics.jsonl`.
+    pub fn metrics(&self) -> PathBuf {
+        self.root.join("metrics.jsonl")
+    }
+
+    /// `checkpoints/<which>`.
+    pub fn checkpoint(&self, which: Which) -> PathBuf {
+        self.root.join("checkpoints").join(which.as_str())
+    }
+
+    /// The agent of a checkpoint: `checkpoints/<which>/agent`.
+    pub fn agent(&self, which: Which) -> PathBuf {
+        self.checkpoint(which).join("agent")
+    }
+
+    /// Whether a run was started here (its `config.toml` exists).
+    pub fn exists(&self) -> bool {
+        self.config().exists()
+    }
+
+    /// The run's resolved experiment.
+    pub fn experiment(&self) -> Result<Experiment> {
+        Experiment::load(&self.config(), &[])
+            .with_context(|| format!("{} is not a run directory", self.root.display()))
+    }
+
+    /// The run's experiment and its agent `which` as a deterministic policy.
+    pub fn policy(&self, which: Which) -> Result<(Experiment, Box<dyn DeterministicPolicy>)> {
+        let exp = self.experiment()?;
+        let dir = self.agent(which);
+        if !dir.exists() {
+            let hint = match which {
+                Which::Best => " (no evaluation has finished yet: try --checkpoint latest)",
+                Which::Latest => "",
+            };
+            anyhow::bail!("{} holds no agent{hint}", dir.display());
+        }
+        let policy = rdpg_agents::load_policy(exp.algo, &dir)
+            .with_context(|| format!("loading {}", dir.display()))?;
+        Ok((exp, policy))
+    }
+
+    /// Every metric row of `metrics.jsonl`, in order.
+    pub fn read_metrics(&self) -> Result<Vec<Metric>> {
+        let path = self.metrics();
+        let mut out = Vec::new();
+        if !path.exists() {
+            return Ok(out);
+        }
+        let file = File::open(&path).with_context(|| format!("reading {}", path.display()))?;
+        for (i, line) in BufReader::new(file).lines().enumerate() {
+            let m: Metric = serde_json::from_str(&line?)
+                .with_context(|| format!("{}:{}: bad metrics line", path.display(), i + 1))?;
+            out.push(m);
+        }
+        Ok(out)
+    }
+
+    /// The run's `summary.json`.
+    pub fn read_summary(&self) -> Result<Summary> {
+        let path = self.summary();
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("{} is not a finished run directory", self.root.display()))?;
+        serde_json::from_str(&text).with_context(|| format!("{}: bad summary", path.display()))
+    }
+}
+
+/// The moving average of the last (up to) [`MovingAverage::WINDOW`] training returns: the one
+/// definition behind the metric rows' `r100`, the summary's R_100MA and the plotted curves.
+/// The paper's R_100MA is the best mean over *full* windows; before 100 episodes the mean is
+/// over the episodes so far ([`MovingAverage::mean`]) and is not an R_100MA
+/// ([`MovingAverage::r100`] is `None`).
+#[derive(Debug, Clone, Default)]
+pub struct MovingAverage {
+    window: VecDeque<f64>,
+    sum: f64,
+}
+
+impl MovingAverage {
+    /// Episodes per window.
+    pub const WINDOW: usize = 100;
+
+    /// Adds a return.
+    pub fn push(&mut self, r: f64) {
+        self.window.push_back(r);
+        self.sum += r;
+        if self.window.len() > Self::WINDOW {
+            self.sum -= self.window.pop_front().unwrap_or(0.0);
+        }
+    }
+
+    /// The mean over the window so far (fewer than 100 returns early on); `None` before any.
+    pub fn mean(&self) -> Option<f64> {
+        (!self.window.is_empty()).then(|| self.sum / self.window.len() as f64)
+    }
+
+    /// The mean over a full window of 100 returns; `None` before 100 episodes.
+    pub fn r100(&self) -> Option<f64> {
+        (self.window.len() == Self::WINDOW).then(|| self.sum / Self::WINDOW as f64)
+    }
+
+    /// The most recent return.
+    pub fn last(&self) -> Option<f64> {
+        self.window.back().copied()
+    }
+}
+
+/// One line of `metrics.jsonl`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Metric {
+    /// A finished training episode (with exploration noise).
+    Episode {
+        /// Environment steps of the run when it ended.
+        step: u64,
+        /// Return on the training reward.
+        #[serde(rename = "return")]
+        ret: f64,
+        /// Return on the stock reward.
+        stock_return: f64,
+        /// Length in steps.
+        len: usize,
+        /// Reached the end of the course.
+        success: bool,
+        /// Moving average of the last 100 training returns (`None` before 100 episodes).
+        r100: Option<f64>,
+        /// Wall-clock seconds since the run started (resumes included).
+        wall: f64,
+    },
+    /// A deterministic evaluation on held-out seeds, on the stock reward.
+    Eval {
+        /// Environment steps of the run.
+        step: u64,
+        /// Mean stock return.
+        mean_return: f64,
+        /// Standard deviation of the stock return.
+        std_return: f64,
+        /// Share of episodes that reached the end of the course.
+        success_rate: f64,
+        /// Wall-clock seconds since the run started.
+        wall: f64,
+    },
+}
+
+impl Metric {
+    /// Environment steps of the row.
+    pub fn step(&self) -> u64 {
+        match self {
+            Metric::Episode { step, .. } | Metric::Eval { step, .. } => *step,
+        }
+    }
+}
+
+/// The headline numbers of a run (`summary.json`), each named by reward and metric.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Summary {
+    /// Experiment name.
+    pub name: String,
+    /// Algorithm.
+    pub algo: String,
+    /// Environment id.
+    pub env: String,
+    /// The reward the agent learned from (`stock` or `paper`).
+    pub train_reward: String,
+    /// Environment steps done.
+    pub steps: u64,
+    /// Training episodes finished.
+    pub episodes: u64,
+    /// Wall-clock seconds of training.
+    pub wall_seconds: f64,
+    /// The paper's R_100MA: best 100-episode moving average of training returns on the
+    /// training reward (with exploration noise); `None` before 100 episodes.
+    pub best_r100_train_reward: Option<f64>,
+    /// The same on the stock reward.
+    pub best_r100_stock_reward: Option<f64>,
+    /// Last deterministic evaluation (stock reward).
+    pub last_eval: Option<EvalSummary>,
+    /// Best deterministic evaluation (stock reward); its agent is `checkpoints/best`.
+    pub best_eval: Option<EvalSummary>,
+}
+
+/// An evaluation in [`Summary`].
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct EvalSummary {
+    /// Environment steps at the evaluation.
+    pub step: u64,
+    /// Mean stock return.
+    pub mean_stock_return: f64,
+    /// Its standard deviation over episodes.
+    pub std_stock_return: f64,
+    /// Share of episodes that reached the end of the course.
+    pub success_rate: f64,
+}
+
+impl From<&EvalRecord> for EvalSummary {
+    fn from(r: &EvalRecord) -> Self {
+        Self {
+            step: r.step,
+            mean_stock_return: r.mean_return,
+            std_stock_return: r.std_return,
+            success_rate: r.success_rate,
+        }
+    }
+}
+
+/// Collects metrics into the run directory and drives the progress bar.
+pub struct RunLog {
+    dir: RunDir,
+    jsonl: BufWriter<File>,
+    episodes_csv: BufWriter<File>,
+    evals_csv: BufWriter<File>,
+    ma: MovingAverage,
+    ma_stock: MovingAverage,
+    episodes: u64,
+    best_r100: Option<f64>,
+    best_r100_stock: Option<f64>,
+    /// The last evaluation.
+    pub last_eval: Option<EvalRecord>,
+    /// The best evaluation so far.
+    pub best_eval: Option<EvalRecord>,
+    /// Set when an evaluation beat the best so far (cleared by whoever saves it).
+    pub new_best: bool,
+    started: Instant,
+    wall_offset: f64,
+    /// The progress bar.
+    pub bar: ProgressBar,
+    /// Set by Ctrl-C.
+    pub stop: Arc<AtomicBool>,
+    /// TensorBoard scalars (`tb/`), written as metrics arrive.
+    tb: SummaryWriter<BufWriter<File>>,
+}
+
+const EPISODES_HEADER: &str = "step,return,stock_return,len,success,r100,wall\n";
+const EVALS_HEADER: &str = "step,mean_return,std_return,success_rate,wall\n";
+
+impl RunLog {
+    /// Opens the metric files of `dir`, keeping the records up to `upto` steps (a resumed
+    /// run drops what was logged after its checkpoint) and rebuilding the running statistics.
+    pub fn open(
+        dir: &RunDir,
+        upto: u64,
+        total: u64,
+        quiet: bool,
+        stop: Arc<AtomicBool>,
+    ) -> Result<Self> {
+        let path = dir.metrics();
+        let mut old = dir.read_metrics()?;
+        old.retain(|m| m.step() <= upto);
+        let create = |name: &str, header: &str| -> Result<BufWriter<File>> {
+            let mut w = BufWriter::new(File::create(dir.root().join(name))?);
+            w.write_all(header.as_bytes())?;
+            Ok(w)
+        };
+        let bar = if quiet {
+            ProgressBar::hidden()
+        } else {
+            let b = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
+            b.set_style(
+                ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps, {per_sec}, ETA {eta} {msg}",
+                )?
+                .progress_chars("=> "),
+            );
+            b.set_position(upto);
+            b.reset_eta();
+            b
+        };
+        let mut log = Self {
+            dir: dir.clone(),
+            jsonl: BufWriter::new(File::create(&path)?),
+            episodes_csv: create("episodes.csv", EPISODES_HEADER)?,
+            evals_csv: create("evals.csv", EVALS_HEADER)?,
+            ma: MovingAverage::default(),
+            ma_stock: MovingAverage::default(),
+            episodes: 0,
+            best_r100: None,
+            best_r100_stock: None,
+            last_eval: None,
+            best_eval: None,
+            new_best: false,
+            started: Instant::now(),
+            wall_offset: 0.0,
+            bar,
+            stop,
+            tb: SummaryWriter::from_prefix(dir.root().join("tb").join("rdpg"))
+                .with_context(|| format!("creating {}", dir.root().join("tb").display()))?,
+        };
+        for m in old {
+            match &m {
+                Metric::Episode {
+                    ret, stock_return, ..
+                } => {
+                    log.push_return(*ret, *stock_return);
+                }
+                Metric::Eval {
+                    step,
+                    mean_return,
+                    std_return,
+                    success_rate,
+                    ..
+                } => log.note_eval(&EvalRecord {
+                    step: *step,
+                    mean_return: *mean_return,
+                    std_return: *std_return,
+                    success_rate: *success_rate,
+                    returns: Vec::new(),
+                }),
+            }
+            let (Metric::Episode { wall, .. } | Metric::Eval { wall, .. }) = &m;
+            log.wall_offset = *wall;
+            log.write(&m)?;
+        }
+        log.new_best = false;
+        log.flush()?;
+        Ok(log)
+    }
+
+    /// Wall-clock seconds of the run (resumes included).
+    pub fn wall(&self) -> f64 {
+        self.wall_offset + self.started.elapsed().as_secs_f64()
+    }
+
+    /// Adds a training return to the 100-episode windows; returns the R_100MA once 100
+    /// episodes are in.
+    pub fn push_return(&mut self, ret: f64, stock: f64) -> Option<f64> {
+        self.episodes += 1;
+        self.ma.push(ret);
+        self.ma_stock.push(stock);
+        let (r, s) = (self.ma.r100()?, self.ma_stock.r100()?);
+        self.best_r100 = Some(self.best_r100.map_or(r, |b| b.max(r)));
+        self.best_r100_stock = Some(self.best_r100_stock.map_or(s, |b| b.max(s)));
+        Some(r)
+    }
+
+    /// Records an evaluation (and whether it is the best so far).
+    pub fn note_eval(&mut self, r: &EvalRecord) {
+        if self
+            .best_eval
+            .as_ref()
+            .is_none_or(|b| r.mean_return > b.mean_return)
+        {
+            self.best_eval = Some(r.clone());
+            self.new_best = true;
+        }
+        self.last_eval = Some(r.clone());
+    }
+
+    /// Appends a metric row to the files and TensorBoard.
+    pub fn write(&mut self, m: &Metric) -> Result<()> {
+        serde_json::to_writer(&mut self.jsonl, m)?;
+        self.jsonl.write_all(b"\n")?;
+        self.write_tensorboard(m)?;
+        match m {
+            Metric::Episode {
+                step,
+                ret,
+                stock_return,
+                len,
+                success,
+                r100,
+                wall,
+            } => writeln!(
+                self.episodes_csv,
+                "{step},{ret},{stock_return},{len},{},{},{wall:.3}",
+                *success as u8,
+                r100.map_or(String::new(), |r| r.to_string())
+            )?,
+            Metric::Eval {
+                step,
+                mean_return,
+                std_return,
+                success_rate,
+                wall,
+            } => writeln!(
+                self.evals_csv,
+                "{step},{mean_return},{std_return},{success_rate},{wall:.3}"
+            )?,
+        }
+        Ok(())
+    }
+
+    fn write_tensorboard(&mut self, m: &Metric) -> Result<()> {
+        let scalars: Vec<(&str, f64)> = match m {
+            Metric::Episode {
+                ret,
+                stock_return,
+                r100,
+                ..
+            } => {
+                let mut v = vec![
+                    ("train/return", *ret),
+                    ("train/stock_return", *stock_return),
+                ];
+                v.extend(r100.map(|r| ("train/return_100ma", r)));
+                v
+            }
+            Metric::Eval {
+                mean_return,
+                std_return,
+                success_rate,
+                ..
+            } => vec![
+                ("eval/mean_stock_return", *mean_return),
+                ("eval/std_stock_return", *std_return),
+                ("eval/success_rate", *success_rate),
+            ],
+        };
+        for (tag, v) in scalars {
+            self.tb
+                .write_scalar(tag, m.step() as i64, v as f32)
+                .context("writing TensorBoard events")?;
+        }
+        Ok(())
+    }
+
+    /// Flushes the metric files.
+    pub fn flush(&mut self) -> Result<()> {
+        self.jsonl.flush()?;
+        self.episodes_csv.flush()?;
+        self.evals_csv.flush()?;
+        Ok(())
+    }
+
+    /// The run's headline numbers at `steps`.
+    pub fn summary(&self, exp: &Experiment, steps: u64) -> Summary {
+        Summary {
+            name: exp.name.clone(),
+            algo: exp.algo.as_str().into(),
+            env: exp.train.env.clone(),
+            train_reward: exp.train.reward.as_str().into(),
+            steps,
+            episodes: self.episodes,
+            wall_seconds: self.wall(),
+            best_r100_train_reward: self.best_r100,
+            best_r100_stock_reward: self.best_r100_stock,
+            last_eval: self.last_eval.as_ref().map(EvalSummary::from),
+            best_eval: self.best_eval.as_ref().map(EvalSummary::from),
+        }
+    }
+
+    /// Writes `summary.json`.
+    pub fn write_summary(&self, exp: &Experiment, steps: u64) -> Result<()> {
+        let s = serde_json::to_string_pretty(&self.summary(exp, steps))?;
+        std::fs::write(self.dir.summary(), s)?;
+        Ok(())
+    }
+
+    /// The progress bar's message.
+    pub fn message(&self) -> String {
+        let mut m = format!("| {} episodes", self.episodes);
+        if let Some(r) = self.ma.last() {
+            m += &format!(", last return {r:.1}");
+        }
+        if let Some(e) = &self.last_eval {
+            m += &format!(", eval {:.1}", e.mean_return);
+        }
+        m
+    }
+}
