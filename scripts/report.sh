@@ -16,7 +16,7 @@ mkdir -p "$out"
 for algo in rdpg ddpg; do
     target/release/rdpg train --config "configs/walker-$algo.toml" --steps "$steps" \
         --set off_policy.warmup_steps=1000 --set off_policy.updates_per_step=0.1 \
-        --set train.eval_every=2000 --set train.eval_episodes=3 \
+        --set train.eval_every=2000 --set train.eval_episodes=3 --set train.test_episodes=20 \
         --out "$out/runs/walker-$algo"
 done
 target/release/rdpg compare "$out/runs/walker-rdpg" "$out/runs/walker-ddpg" \

@@ -320,3 +320,111 @@ fn any_algorithm_through_the_trainer_trait() {
     .unwrap();
     assert_eq!(e3.returns, e1.returns);
 }
+
+/// Injected (teacher) episodes stay in their own pool for the whole anneal: with a replay of
+/// 2000 transitions, an anneal over 10k steps and 8k steps of the agent's own experience (4x
+/// the capacity), the batches near 8k still hold the annealed share, `round(n * share)` of
+/// `n` windows, as logged in each update's statistics.
+#[test]
+fn injected_experience_outlives_the_agents_fifo() {
+    use rdpg_agents::rdpg::inject::{record, InjectionConfig};
+    use rdpg_agents::rdpg::RdpgPolicy;
+    use rdpg_agents::{TrainObserver, UpdateStats};
+
+    let train = TrainConfig {
+        env: "CueMemory-v0".into(),
+        total_steps: 8_200,
+        eval_every: 0,
+        eval_episodes: 1,
+        seed: 3,
+        ..TrainConfig::default()
+    };
+    let mut agent = memory_task_config(false);
+    agent.actor_hidden = 8;
+    agent.critic_hidden = 8;
+    agent.trunk = rdpg_agents::rdpg::Trunk::Mlp { hidden: vec![8] };
+    agent.batch_size = 32;
+    agent.scan_len = 2;
+    agent.opt_len = 4;
+    agent.update_len = 4;
+    agent.num_threads = Some(1);
+    let teacher_agent = rdpg_agents::RdpgAgent::new(agent.clone(), 2, 1, 5).unwrap();
+    let teacher = record(
+        &mut RdpgPolicy::new(&teacher_agent),
+        &train,
+        50,
+        9,
+        0.2,
+        "t",
+    )
+    .unwrap();
+    let path = tmp("cue-teacher.bin");
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    teacher.save(&path).unwrap();
+    let inj = InjectionConfig {
+        teachers: vec![path],
+        initial_share: 0.5,
+        anneal_steps: 10_000,
+        max_fraction: 0.3,
+    };
+    let off = OffPolicyConfig {
+        warmup_steps: 500,
+        updates_per_step: 0.1,
+        replay_capacity: 2_000,
+        injection: Some(inj.clone()),
+        ..OffPolicyConfig::default()
+    };
+    struct Shares(Vec<(u64, f64)>);
+    impl TrainObserver for Shares {
+        fn on_update(&mut self, step: u64, s: &UpdateStats) {
+            self.0.push((step, s.injected_share));
+        }
+    }
+    let mut t = OffPolicyTrainer::new(train, off, agent).unwrap();
+    let mut shares = Shares(Vec::new());
+    t.run(u64::MAX, &mut shares).unwrap();
+    assert_eq!(t.replay().num_injected_episodes(), 50);
+    assert!(t.replay().agent_len_transitions() <= 2_000);
+    let late: Vec<&(u64, f64)> = shares.0.iter().filter(|(s, _)| *s >= 7_900).collect();
+    assert!(late.len() >= 20, "{} late updates", late.len());
+    for &&(step, share) in &late {
+        let want = (32.0 * inj.share(step)).round() / 32.0;
+        assert_eq!(share, want, "step {step}");
+        assert!(share > 0.0, "step {step}: no teacher windows left");
+    }
+}
+
+/// With parameter noise the environments act with a perturbed copy of the actor, but the
+/// replay stores the trained actor's states (what burn-in starts from): every stored state
+/// equals the trained actor's state along the episode's observations.
+#[test]
+fn stored_states_come_from_the_trained_actor_under_parameter_noise() {
+    let (mut train, mut off, mut agent) = small();
+    train.num_envs = 1;
+    train.workers = 1;
+    train.total_steps = 900;
+    off.updates_per_step = 0.0; // a fixed actor, so that the episode can be replayed
+    off.warmup_steps = 250;
+    off.param_noise = Some(ParamNoiseSpec {
+        every_steps: 100,
+        ..ParamNoiseSpec::default()
+    });
+    agent.burn_in_from_stored_state = true;
+    let mut t = OffPolicyTrainer::new(train, off, agent).unwrap();
+    t.run(u64::MAX, &mut Quiet).unwrap();
+    // Episodes are 200 steps: the third (steps 400..600) was acted by perturbed copies.
+    let ep = t.replay().episodes()[2].clone();
+    let a = t.agent();
+    let sd = a.state_dim();
+    let (mut clean, mut exploring) = (a.initial_state(1), a.initial_state(1));
+    let mut differs = false;
+    for k in 0..ep.len() {
+        let stored = &ep.states[k * sd..(k + 1) * sd];
+        assert_eq!(stored, &clean.to_vec()[..], "state before step {k}");
+        differs |= stored != &exploring.to_vec()[..];
+        let o = &ep.obs[k * 2..(k + 1) * 2];
+        a.act(o, &mut clean);
+        a.act_exploring(o, &mut exploring);
+    }
+    assert!(differs, "the exploring copy was never perturbed");
+}

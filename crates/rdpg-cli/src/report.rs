@@ -154,8 +154,8 @@ pub fn plot(a: &PlotArgs) -> Result<()> {
 /// The comparison table in the shape of the paper's Table I.
 fn table(runs: &[Run]) -> String {
     let mut t = String::new();
-    t += "| model | env | training reward | steps | wall | R_100MA (training reward) | eval return ± std (stock reward, last) | best eval (stock) | success % (last eval) |\n";
-    t += "|---|---|---|---|---|---|---|---|---|\n";
+    t += "| model | env | training reward | steps | wall | R_100MA (training reward) | eval return ± std (stock reward, last) | best eval (stock) | success % (last eval) | test return ± std (stock, best agent) | test success % |\n";
+    t += "|---|---|---|---|---|---|---|---|---|---|---|\n";
     for r in runs {
         let s = &r.summary;
         let r100 = s
@@ -170,9 +170,18 @@ fn table(runs: &[Run]) -> String {
         let best = s.best_eval.map_or("–".into(), |e| {
             format!("{:.1} (step {})", e.mean_stock_return, e.step)
         });
+        let (test, test_success) = s.test_eval.map_or(("–".into(), "–".into()), |e| {
+            (
+                format!(
+                    "{:.1} ± {:.1} ({} ep.)",
+                    e.mean_stock_return, e.std_stock_return, e.episodes
+                ),
+                format!("{:.1}", 100.0 * e.success_rate),
+            )
+        });
         let _ = writeln!(
             t,
-            "| {} ({}) | {} | {} | {} | {:.0} s | {} | {} | {} | {} |",
+            "| {} ({}) | {} | {} | {} | {:.0} s | {} | {} | {} | {} | {} | {} |",
             r.label,
             s.algo,
             s.env,
@@ -182,12 +191,15 @@ fn table(runs: &[Run]) -> String {
             r100,
             last,
             best,
-            success
+            success,
+            test,
+            test_success
         );
     }
     t += "\nR_100MA: best 100-episode moving average of training returns (with exploration noise) on \
           the training reward, the paper's metric. Evaluations: deterministic policy on held-out \
-          seeds, stock Gymnasium reward. Success: the environment's success flag (walkers: reached \
+          validation seeds (they choose the best agent), stock Gymnasium reward. Test: the best \
+          agent on separate test seeds, at the end of the run. Success: the environment's success flag (walkers: reached \
           the end of the course without falling).\n";
     t
 }

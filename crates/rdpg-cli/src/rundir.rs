@@ -22,7 +22,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use rdpg_agents::{DeterministicPolicy, EvalRecord};
+use rdpg_agents::{DeterministicPolicy, EvalRecord, UpdateStats};
 use serde::{Deserialize, Serialize};
 use syntaxdot_summary::SummaryWriter;
 
@@ -82,6 +82,11 @@ impl RunDir {
     /// `checkpoints/<which>`.
     pub fn checkpoint(&self, which: Which) -> PathBuf {
         self.root.join("checkpoints").join(which.as_str())
+    }
+
+    /// The update statistics not yet logged when `checkpoints/latest` was saved.
+    pub fn pending_updates(&self) -> PathBuf {
+        self.checkpoint(Which::Latest).join("pending_updates.json")
     }
 
     /// The agent of a checkpoint: `checkpoints/<which>/agent`.
@@ -202,6 +207,9 @@ pub enum Metric {
         r100: Option<f64>,
         /// Wall-clock seconds since the run started (resumes included).
         wall: f64,
+        /// The updates made since the previous episode row.
+        #[serde(default)]
+        learner: UpdateMeans,
     },
     /// A deterministic evaluation on held-out seeds, on the stock reward.
     Eval {
@@ -223,6 +231,61 @@ impl Metric {
     pub fn step(&self) -> u64 {
         match self {
             Metric::Episode { step, .. } | Metric::Eval { step, .. } => *step,
+        }
+    }
+}
+
+/// The learner's updates between two metric rows: how many, and their mean statistics
+/// (`None` when there were none).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct UpdateMeans {
+    /// Updates made.
+    pub updates: u64,
+    /// Mean critic (value) loss.
+    pub critic_loss: Option<f64>,
+    /// Mean actor (policy) loss over the updates that trained the actor.
+    pub actor_loss: Option<f64>,
+    /// Mean value estimate.
+    pub q_mean: Option<f64>,
+    /// Mean share of each batch drawn from injected (teacher) episodes.
+    pub injected_share: Option<f64>,
+}
+
+/// Sums of update statistics, turned into [`UpdateMeans`] at each metric row. The sums
+/// pending at a checkpoint are saved with it, so that a resumed run logs the same rows.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct UpdateSums {
+    n: u64,
+    n_actor: u64,
+    critic: f64,
+    actor: f64,
+    q: f64,
+    injected: f64,
+}
+
+impl UpdateSums {
+    /// Adds one update.
+    pub fn add(&mut self, s: &UpdateStats) {
+        self.n += 1;
+        self.critic += s.critic_loss;
+        self.q += s.q_mean;
+        self.injected += s.injected_share;
+        if let Some(a) = s.actor_loss {
+            self.n_actor += 1;
+            self.actor += a;
+        }
+    }
+
+    /// The means so far, and a fresh start.
+    pub fn take(&mut self) -> UpdateMeans {
+        let s = std::mem::take(self);
+        let mean = |x: f64, n: u64| (n > 0).then(|| x / n as f64);
+        UpdateMeans {
+            updates: s.n,
+            critic_loss: mean(s.critic, s.n),
+            actor_loss: mean(s.actor, s.n_actor),
+            q_mean: mean(s.q, s.n),
+            injected_share: mean(s.injected, s.n),
         }
     }
 }
@@ -251,8 +314,30 @@ pub struct Summary {
     pub best_r100_stock_reward: Option<f64>,
     /// Last deterministic evaluation (stock reward).
     pub last_eval: Option<EvalSummary>,
-    /// Best deterministic evaluation (stock reward); its agent is `checkpoints/best`.
+    /// Best deterministic evaluation on the validation seeds (stock reward); its agent is
+    /// `checkpoints/best`.
     pub best_eval: Option<EvalSummary>,
+    /// The final test of `checkpoints/best` on the test seeds (disjoint from the validation
+    /// seeds that chose it), written when the run reaches its budget.
+    #[serde(default)]
+    pub test_eval: Option<TestSummary>,
+}
+
+/// The test evaluation in [`Summary`].
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct TestSummary {
+    /// Environment steps of the tested agent (the best validation evaluation's).
+    pub step: u64,
+    /// Test episodes.
+    pub episodes: usize,
+    /// First test seed (episode k uses `first_seed + k`).
+    pub first_seed: u64,
+    /// Mean stock return.
+    pub mean_stock_return: f64,
+    /// Its standard deviation over episodes.
+    pub std_stock_return: f64,
+    /// Share of episodes that reached the end of the course.
+    pub success_rate: f64,
 }
 
 /// An evaluation in [`Summary`].
@@ -302,11 +387,16 @@ pub struct RunLog {
     pub bar: ProgressBar,
     /// Set by Ctrl-C.
     pub stop: Arc<AtomicBool>,
+    /// The learner's updates since the last episode row.
+    pub updates: UpdateSums,
+    /// The final test evaluation, once made.
+    pub test_eval: Option<TestSummary>,
     /// TensorBoard scalars (`tb/`), written as metrics arrive.
     tb: SummaryWriter<BufWriter<File>>,
 }
 
-const EPISODES_HEADER: &str = "step,return,stock_return,len,success,r100,wall\n";
+const EPISODES_HEADER: &str = "step,return,stock_return,len,success,r100,updates,critic_loss,\
+                               actor_loss,q_mean,injected_share,wall\n";
 const EVALS_HEADER: &str = "step,mean_return,std_return,success_rate,wall\n";
 
 impl RunLog {
@@ -322,6 +412,13 @@ impl RunLog {
         let path = dir.metrics();
         let mut old = dir.read_metrics()?;
         old.retain(|m| m.step() <= upto);
+        let pending = dir.pending_updates();
+        let updates = if upto > 0 && pending.exists() {
+            serde_json::from_str(&std::fs::read_to_string(&pending)?)
+                .with_context(|| format!("{}: bad pending update statistics", pending.display()))?
+        } else {
+            UpdateSums::default()
+        };
         let create = |name: &str, header: &str| -> Result<BufWriter<File>> {
             let mut w = BufWriter::new(File::create(dir.root().join(name))?);
             w.write_all(header.as_bytes())?;
@@ -358,6 +455,8 @@ impl RunLog {
             wall_offset: 0.0,
             bar,
             stop,
+            updates,
+            test_eval: None,
             tb: SummaryWriter::from_prefix(dir.root().join("tb").join("rdpg"))
                 .with_context(|| format!("creating {}", dir.root().join("tb").display()))?,
         };
@@ -435,12 +534,21 @@ impl RunLog {
                 success,
                 r100,
                 wall,
-            } => writeln!(
-                self.episodes_csv,
-                "{step},{ret},{stock_return},{len},{},{},{wall:.3}",
-                *success as u8,
-                r100.map_or(String::new(), |r| r.to_string())
-            )?,
+                learner: u,
+            } => {
+                let opt = |x: Option<f64>| x.map_or(String::new(), |r| r.to_string());
+                writeln!(
+                    self.episodes_csv,
+                    "{step},{ret},{stock_return},{len},{},{},{},{},{},{},{},{wall:.3}",
+                    *success as u8,
+                    opt(*r100),
+                    u.updates,
+                    opt(u.critic_loss),
+                    opt(u.actor_loss),
+                    opt(u.q_mean),
+                    opt(u.injected_share)
+                )?
+            }
             Metric::Eval {
                 step,
                 mean_return,
@@ -461,6 +569,7 @@ impl RunLog {
                 ret,
                 stock_return,
                 r100,
+                learner: u,
                 ..
             } => {
                 let mut v = vec![
@@ -468,6 +577,10 @@ impl RunLog {
                     ("train/stock_return", *stock_return),
                 ];
                 v.extend(r100.map(|r| ("train/return_100ma", r)));
+                v.extend(u.critic_loss.map(|x| ("learner/critic_loss", x)));
+                v.extend(u.actor_loss.map(|x| ("learner/actor_loss", x)));
+                v.extend(u.q_mean.map(|x| ("learner/q_mean", x)));
+                v.extend(u.injected_share.map(|x| ("learner/injected_share", x)));
                 v
             }
             Metric::Eval {
@@ -511,6 +624,7 @@ impl RunLog {
             best_r100_stock_reward: self.best_r100_stock,
             last_eval: self.last_eval.as_ref().map(EvalSummary::from),
             best_eval: self.best_eval.as_ref().map(EvalSummary::from),
+            test_eval: self.test_eval,
         }
     }
 

@@ -13,7 +13,7 @@ use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats
 use serde::Serialize;
 
 use crate::experiment::Experiment;
-use crate::rundir::{Metric, RunDir, RunLog, Which};
+use crate::rundir::{Metric, RunDir, RunLog, TestSummary, Which};
 
 /// Arguments of `rdpg train`.
 #[derive(Debug, Args)]
@@ -45,6 +45,12 @@ struct Observer<'a> {
     error: Option<anyhow::Error>,
 }
 
+impl<'a> Observer<'a> {
+    fn new(log: &'a mut RunLog) -> Self {
+        Self { log, error: None }
+    }
+}
+
 impl TrainObserver for Observer<'_> {
     fn on_episode(&mut self, r: &EpisodeRecord) {
         let r100 = self.log.push_return(r.ret, r.stock_return);
@@ -56,6 +62,7 @@ impl TrainObserver for Observer<'_> {
             success: r.success,
             r100,
             wall: self.log.wall(),
+            learner: self.log.updates.take(),
         };
         if let Err(e) = self.log.write(&m) {
             self.error.get_or_insert(e);
@@ -77,9 +84,11 @@ impl TrainObserver for Observer<'_> {
         self.log.bar.set_message(self.log.message());
     }
     fn on_update(&mut self, _step: u64, s: &UpdateStats) {
-        if !(s.critic_loss.is_finite() && s.actor_loss.is_finite()) && self.error.is_none() {
+        self.log.updates.add(s);
+        let actor_ok = s.actor_loss.is_none_or(f64::is_finite);
+        if !(s.critic_loss.is_finite() && actor_ok) && self.error.is_none() {
             self.error = Some(anyhow::anyhow!(
-                "the losses diverged (critic {}, actor {}); lower the learning rates",
+                "the losses diverged (critic {}, actor {:?}); lower the learning rates",
                 s.critic_loss,
                 s.actor_loss
             ));
@@ -89,6 +98,14 @@ impl TrainObserver for Observer<'_> {
         self.log.bar.set_position(step);
         self.error.is_some() || self.log.stop.load(Ordering::Relaxed)
     }
+}
+
+/// Saves the whole training state to `checkpoints/latest`, with the update statistics the
+/// metric files have not logged yet.
+fn save_latest(trainer: &mut dyn Trainer, run: &RunDir, log: &RunLog) -> Result<()> {
+    trainer.save(&run.checkpoint(Which::Latest))?;
+    std::fs::write(run.pending_updates(), serde_json::to_string(&log.updates)?)?;
+    Ok(())
 }
 
 /// Saves the agent alone (the `best` checkpoint), with the evaluation that chose it.
@@ -166,10 +183,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let target = total
             .min(next_ckpt)
             .min(every(exp.train.eval_every, trainer.steps()));
-        let mut obs = Observer {
-            log: &mut log,
-            error: None,
-        };
+        let mut obs = Observer::new(&mut log);
         trainer.run(target, &mut obs)?;
         if let Some(e) = obs.error {
             log.flush()?;
@@ -180,7 +194,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
-            trainer.save(&latest)?;
+            save_latest(trainer.as_mut(), &run, &log)?;
             log.flush()?;
             log.write_summary(&exp, trainer.steps())?;
             log.bar.abandon();
@@ -193,7 +207,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             return Ok(());
         }
         if trainer.steps() >= next_ckpt {
-            trainer.save(&latest)?;
+            save_latest(trainer.as_mut(), &run, &log)?;
             next_ckpt = every(exp.run.checkpoint_every, trainer.steps());
         }
     }
@@ -204,16 +218,13 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         .is_none_or(|e| e.step != trainer.steps())
     {
         let r = trainer.evaluate()?;
-        Observer {
-            log: &mut log,
-            error: None,
-        }
-        .on_eval(&r);
+        Observer::new(&mut log).on_eval(&r);
         if std::mem::take(&mut log.new_best) {
             save_best(trainer.as_ref(), &best, log.best_eval.as_ref())?;
         }
     }
-    trainer.save(&latest)?;
+    save_latest(trainer.as_mut(), &run, &log)?;
+    log.test_eval = Some(test_best(&run, &exp, log.best_eval.as_ref())?);
     log.flush()?;
     log.write_summary(&exp, trainer.steps())?;
     log.bar.finish();
@@ -222,19 +233,36 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     Ok(())
 }
 
+/// The final test: the agent chosen on the validation seeds (`checkpoints/best`) on the test
+/// seeds, which nothing else looks at.
+fn test_best(run: &RunDir, exp: &Experiment, best: Option<&EvalRecord>) -> Result<TestSummary> {
+    let (_, mut policy) = run.policy(Which::Best)?;
+    let t = &exp.train;
+    let r = evaluate_policy(policy.as_mut(), t, t.test_episodes, t.test_seed)?;
+    Ok(TestSummary {
+        step: best.map_or(0, |b| b.step),
+        episodes: t.test_episodes,
+        first_seed: t.test_seed,
+        mean_stock_return: r.mean_return,
+        std_stock_return: r.std_return,
+        success_rate: r.success_rate,
+    })
+}
+
 /// Arguments of `rdpg eval`.
 #[derive(Debug, Args)]
 pub struct EvalArgs {
     /// Run directory written by `rdpg train`.
     #[arg(long)]
     run: PathBuf,
-    /// Evaluation episodes.
-    #[arg(long, default_value_t = 10)]
-    episodes: usize,
+    /// Evaluation episodes (default: the run's `train.test_episodes`).
+    #[arg(long)]
+    episodes: Option<usize>,
     /// Which agent of the run.
     #[arg(long, value_enum, default_value_t = Which::Best)]
     checkpoint: Which,
-    /// First seed (default: the run's held-out `train.eval_seed`).
+    /// First seed (default: the run's test seeds, `train.test_seed`, which model selection
+    /// never saw).
     #[arg(long)]
     seed: Option<u64>,
 }
@@ -303,12 +331,13 @@ pub fn record(a: &RecordArgs) -> Result<()> {
 
 /// `rdpg eval`.
 pub fn eval(a: &EvalArgs) -> Result<()> {
-    if a.episodes == 0 {
+    if a.episodes == Some(0) {
         bail!("--episodes must be at least 1");
     }
     let (exp, mut policy) = RunDir::new(&a.run).policy(a.checkpoint)?;
-    let seed = a.seed.unwrap_or(exp.train.eval_seed);
-    let r = evaluate_policy(policy.as_mut(), &exp.train, a.episodes, seed)?;
+    let seed = a.seed.unwrap_or(exp.train.test_seed);
+    let episodes = a.episodes.unwrap_or(exp.train.test_episodes);
+    let r = evaluate_policy(policy.as_mut(), &exp.train, episodes, seed)?;
     #[derive(Serialize)]
     struct Line<'a> {
         run: String,
@@ -326,7 +355,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         run: a.run.display().to_string(),
         checkpoint: a.checkpoint.as_str(),
         env: &exp.train.env,
-        episodes: a.episodes,
+        episodes,
         first_seed: seed,
         metric: "deterministic evaluation, stock reward",
         mean_stock_return: r.mean_return,

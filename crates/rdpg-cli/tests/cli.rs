@@ -277,6 +277,17 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     assert_eq!(summary["steps"], 700);
     assert_eq!(summary["train_reward"], "stock");
     assert!(summary["best_r100_train_reward"].is_number());
+    // The best agent (chosen on the validation seeds) is tested on separate seeds.
+    let test = &summary["test_eval"];
+    assert_eq!(
+        (test["episodes"].as_u64(), test["first_seed"].as_u64()),
+        (Some(100), Some(3_000_000))
+    );
+    assert_eq!(test["step"], summary["best_eval"]["step"]);
+    // Episode rows carry the learner's update statistics.
+    assert!(lines.iter().any(|l| l["kind"] == "episode"
+        && l["learner"]["updates"].as_u64().is_some_and(|u| u > 0)
+        && l["learner"]["critic_loss"].is_number()));
     let csv = std::fs::read_to_string(one.join("episodes.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + episodes);
     assert!(std::fs::read_to_string(one.join("config.toml"))
@@ -392,6 +403,10 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     let out = ok(rdpg().args(["eval", "--episodes", "3", "--run"]).arg(&one));
     let line: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(line["episodes"], 3);
+    assert_eq!(
+        line["first_seed"], 3_000_000,
+        "eval defaults to the test seeds"
+    );
     assert_eq!(line["returns"].as_array().unwrap().len(), 3);
     assert!(line["metric"].as_str().unwrap().contains("stock reward"));
 }
@@ -454,6 +469,8 @@ fn every_config_trains() {
                 "train.eval_every=0",
                 "--set",
                 "train.eval_episodes=1",
+                "--set",
+                "train.test_episodes=2",
             ]);
         let on_policy = std::fs::read_to_string(&cfg)
             .unwrap()

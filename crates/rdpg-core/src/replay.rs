@@ -3,8 +3,8 @@
 //! The buffer keeps whole episodes, FIFO by episode, and samples fixed-shape windows
 //! ([`SequenceBatch`]) that never cross an episode boundary: `scan` burn-in steps before a
 //! start `t` (clipped at the episode start, left-padded) and `opt` optimisation steps from `t`
-//! (right-padded when the episode is shorter than `opt`), plus the bootstrap observation after
-//! the last real step.
+//! (clipped at the episode end, right-padded), plus the bootstrap observation after the last
+//! real step.
 //!
 //! # Storage
 //!
@@ -13,15 +13,20 @@
 //! acting-time recurrent states (the state *before* step `t`), the `terminated` / `truncated`
 //! flags of its last transition and whether it was injected (teacher experience).
 //!
-//! Agent and injected episodes are kept in two FIFO queues; a global insertion sequence number
-//! orders them, so eviction is "oldest closed episode first" across both, in O(1) amortised.
+//! Agent and injected episodes are kept in two FIFO queues with separate budgets: the agent's
+//! own episodes (and the open one) share `capacity`, evicted oldest first; injected (teacher)
+//! episodes have their own cap, `floor(max_injected_fraction * capacity)` transitions, and are
+//! evicted only by newer injected episodes. So teacher experience loaded at the start of a run
+//! stays for as long as the run samples from it, however much the agent collects. A global
+//! insertion sequence number keeps the order of episodes across both queues.
 //!
 //! # Sampling
 //!
-//! A *position* is a pair (episode, start `t`). An episode of `n_e` transitions has the starts
-//! `0 ..= n_e - opt` when `n_e >= opt`, and the single start `0` (with `opt_len = n_e`)
-//! otherwise. Windows are drawn uniformly over all positions, so an episode is picked with
-//! probability proportional to its number of starts. Per pool, a prefix-sum index over the
+//! A *position* is a pair (episode, start `t`), and every transition is a start: an episode of
+//! `n_e` transitions has the starts `0 .. n_e`, and a window starting at `t > n_e - opt` runs
+//! past the episode's end with right padding (`opt_len = n_e - t`). Windows are drawn uniformly
+//! over all positions, i.e. uniformly over transitions, so the last `opt - 1` steps of an
+//! episode (the fall included) start windows exactly as often as any other step. Per pool, a prefix-sum index over the
 //! episodes' start counts (keyed by `opt`) is kept in an internal cache, extended and trimmed
 //! incrementally as episodes come and go and rebuilt only when `opt` changes; each draw is
 //! one `integers` draw plus a binary search.
@@ -54,8 +59,9 @@ pub struct ReplayConfig {
     /// Size of the stored acting-time recurrent state; 0 stores none.
     #[serde(default)]
     pub state_dim: usize,
-    /// Injected (teacher) transitions may fill at most this fraction of `capacity`
-    /// (default [`DEFAULT_MAX_INJECTED_FRACTION`]); in `[0, 1]`.
+    /// Injected (teacher) transitions have their own budget of `floor(fraction * capacity)`
+    /// transitions, on top of `capacity` (default [`DEFAULT_MAX_INJECTED_FRACTION`]); in
+    /// `[0, 1]`.
     #[serde(default = "default_max_injected_fraction")]
     pub max_injected_fraction: f64,
 }
@@ -209,13 +215,10 @@ struct Store {
     open: Option<Episode>,
 }
 
-/// Number of window starts of an episode of `len` transitions for `opt` steps.
-fn starts(len: usize, opt: usize) -> u64 {
-    if len >= opt {
-        (len - opt + 1) as u64
-    } else {
-        1
-    }
+/// Number of window starts of an episode of `len` transitions: one per transition, whatever
+/// `opt` (windows past the end are right-padded).
+fn starts(len: usize, _opt: usize) -> u64 {
+    len as u64
 }
 
 /// Prefix sums of the start counts of one pool, for one `opt`.
@@ -385,9 +388,15 @@ impl EpisodicReplay {
         &self.store.config
     }
 
-    /// Transitions held: closed episodes plus the open one (what the capacity counts).
+    /// Transitions held: closed episodes (agent and injected) plus the open one.
     pub fn len_transitions(&self) -> usize {
         self.agent_transitions + self.injected_transitions + self.open_len()
+    }
+
+    /// The agent's own transitions (closed episodes plus the open one): what `capacity`
+    /// bounds.
+    pub fn agent_len_transitions(&self) -> usize {
+        self.agent_transitions + self.open_len()
     }
 
     /// True when the buffer holds no transition at all.
@@ -506,9 +515,10 @@ impl EpisodicReplay {
     ///
     /// When `state_dim > 0`, `states` may be empty (read as zeros, e.g. for a teacher with
     /// another network); when `state_dim == 0` any states are dropped. Adding an injected
-    /// episode first evicts the oldest injected episodes until the injected transitions fit
-    /// in `floor(max_injected_fraction * capacity)`; then the oldest closed episodes are
-    /// evicted while the buffer is over capacity. The open episode is left alone.
+    /// episode evicts the oldest injected episodes until the injected transitions fit in
+    /// their own budget, `floor(max_injected_fraction * capacity)`; adding an agent episode
+    /// evicts the oldest agent episodes while the agent's transitions exceed `capacity`. The
+    /// open episode is left alone.
     pub fn add_episode(&mut self, mut episode: Episode) -> Result<(), ReplayError> {
         let cfg = self.store.config;
         if cfg.state_dim == 0 {
@@ -545,31 +555,22 @@ impl EpisodicReplay {
         } else {
             self.agent_transitions += len;
             self.store.agent.push_back(stored);
+            self.evict_over_capacity();
         }
-        self.evict_over_capacity();
     }
 
-    /// Evicts the oldest closed episodes while over capacity. The open episode is never
-    /// evicted, nor the newest closed episode when no step is open: capacity is exceeded only
-    /// by a buffer holding one single episode longer than the capacity.
+    /// Evicts the agent's oldest closed episodes while its transitions (open episode
+    /// included) exceed the capacity. Injected episodes are not touched. The open episode is
+    /// never evicted, nor the newest closed agent episode when no step is open: capacity is
+    /// exceeded only by a buffer holding one single agent episode longer than the capacity.
     fn evict_over_capacity(&mut self) {
-        while self.len_transitions() > self.store.config.capacity {
-            let closed = self.num_episodes();
+        while self.agent_len_transitions() > self.store.config.capacity {
+            let closed = self.store.agent.len();
             if closed == 0 || (closed == 1 && self.open_len() == 0) {
                 break;
             }
-            let from_agent = match (self.store.agent.front(), self.store.injected.front()) {
-                (Some(a), Some(i)) => a.seq < i.seq,
-                (Some(_), None) => true,
-                _ => false,
-            };
-            if from_agent {
-                let old = self.store.agent.pop_front().expect("agent episode");
-                self.agent_transitions -= old.episode.len();
-            } else {
-                let old = self.store.injected.pop_front().expect("injected episode");
-                self.injected_transitions -= old.episode.len();
-            }
+            let old = self.store.agent.pop_front().expect("agent episode");
+            self.agent_transitions -= old.episode.len();
         }
     }
 
@@ -828,12 +829,8 @@ mod tests {
             let t = first_step + sl;
             // Scan clipped at the episode start, opt clipped at the episode end.
             assert_eq!(sl, s.min(t));
-            if len >= l {
-                assert!(t + l <= len);
-                assert_eq!(ol, l);
-            } else {
-                assert_eq!((t, ol), (0, len));
-            }
+            assert!(t < len);
+            assert_eq!(ol, l.min(len - t));
             for j in 0..=steps {
                 let real_obs = j >= first_slot && j <= s + ol;
                 for c in 0..OD {
@@ -886,12 +883,25 @@ mod tests {
         fn total(&self) -> usize {
             self.closed.iter().map(|m| m.1).sum::<usize>() + self.open
         }
+        /// The agent's transitions: what the capacity bounds.
+        fn agent_total(&self) -> usize {
+            self.closed
+                .iter()
+                .filter(|m| !m.3)
+                .map(|m| m.1)
+                .sum::<usize>()
+                + self.open
+        }
+        /// Evicts the oldest agent episodes while the agent is over capacity; injected
+        /// episodes have their own budget.
         fn evict(&mut self, cap: usize) {
-            while self.total() > cap && !(self.closed.len() <= 1 && self.open == 0) {
-                if self.closed.is_empty() {
+            loop {
+                let agent = self.closed.iter().filter(|m| !m.3).count();
+                if self.agent_total() <= cap || agent == 0 || (agent == 1 && self.open == 0) {
                     break;
                 }
-                self.closed.remove(0);
+                let pos = self.closed.iter().position(|m| !m.3).unwrap();
+                self.closed.remove(pos);
             }
         }
     }
@@ -993,9 +1003,12 @@ mod tests {
             let inj: usize = model.closed.iter().filter(|m| m.3).map(|m| m.1).sum();
             prop_assert_eq!(buf.injected_transitions(), inj);
             prop_assert!(inj <= config(cap).max_injected_transitions());
-            // Capacity respected unless one single episode is longer than it.
-            let single = buf.num_episodes() + usize::from(buf.open_len() > 0) <= 1;
-            prop_assert!(buf.len_transitions() <= cap || single);
+            // Capacity bounds the agent's transitions unless one single agent episode is
+            // longer than it; injected ones have their own budget.
+            let agent_eps = buf.num_episodes() - buf.num_injected_episodes();
+            let single = agent_eps + usize::from(buf.open_len() > 0) <= 1;
+            prop_assert!(buf.agent_len_transitions() <= cap || single);
+            prop_assert_eq!(buf.len_transitions(), buf.agent_len_transitions() + inj);
 
             let mut rng = NpRng::from_seed(seed);
             match buf.sample(&mut rng, n, scan, opt) {
@@ -1051,9 +1064,12 @@ mod tests {
         }
     }
 
+    /// Every transition starts a window equally often (uniform over transitions, not over
+    /// the start positions of full windows): the last `opt - 1` steps of each episode, its
+    /// terminal step included, are as likely as any other, with right-padded windows.
     #[test]
-    fn uniform_over_positions() {
-        // Lengths 3, 5, 1, 8, 2 with opt = 2: starts 2, 4, 1, 7, 1 = 15 positions.
+    fn uniform_over_transitions() {
+        // Lengths 3, 5, 1, 8, 2: 19 transitions, each a start, with opt = 3.
         let lens = [3usize, 5, 1, 8, 2];
         let mut buf = EpisodicReplay::new(config(100)).unwrap();
         for (id, &len) in lens.iter().enumerate() {
@@ -1066,29 +1082,35 @@ mod tests {
             .enumerate()
             .map(|(id, &len)| (id, len, id % 2 == 0, false))
             .collect();
-        assert_eq!(buf.num_positions(2), 15);
+        assert_eq!(buf.num_positions(3), 19);
         let mut counts = std::collections::HashMap::new();
         let mut rng = NpRng::from_seed(123);
-        let draws = 150_000;
+        let draws = 190_000;
         for _ in 0..(draws / 500) {
-            let b = buf.sample(&mut rng, 500, 2, 2).unwrap();
+            let b = buf.sample(&mut rng, 500, 2, 3).unwrap();
             for key in check_batch(&b, &metas) {
                 *counts.entry(key).or_insert(0usize) += 1;
             }
         }
-        assert_eq!(counts.len(), 15, "{counts:?}");
-        let expected = draws as f64 / 15.0;
+        // Every transition of every episode started windows, the last ones included.
+        for (id, &len) in lens.iter().enumerate() {
+            for t in 0..len {
+                assert!(counts.contains_key(&(id, t)), "({id}, {t}) never sampled");
+            }
+        }
+        assert_eq!(counts.len(), 19, "{counts:?}");
+        let expected = draws as f64 / 19.0;
         let chi2: f64 = counts
             .values()
             .map(|&c| (c as f64 - expected).powi(2) / expected)
             .sum();
-        // 14 degrees of freedom: P(chi2 > 36.1) = 0.001.
-        assert!(chi2 < 36.1, "chi2 = {chi2}, counts {counts:?}");
+        // 18 degrees of freedom: P(chi2 > 42.3) = 0.001.
+        assert!(chi2 < 42.3, "chi2 = {chi2}, counts {counts:?}");
     }
 
     #[test]
     fn uniform_across_pools() {
-        // Agent: one episode with 4 starts (len 5, opt 2); injected: one with 2 (len 3).
+        // Agent: one episode with 5 starts (len 5); injected: one with 3 (len 3).
         let mut buf = EpisodicReplay::new(config(100)).unwrap();
         push_coded(&mut buf, 0, 5, true, true);
         let mut ep = coded_episode(1, 3, true, true);
@@ -1097,7 +1119,7 @@ mod tests {
         let mut rng = NpRng::from_seed(5);
         let b = buf.sample(&mut rng, 60_000, 0, 2).unwrap();
         let inj = b.injected.iter().sum::<f32>() as f64 / 60_000.0;
-        assert!((inj - 2.0 / 6.0).abs() < 0.01, "{inj}");
+        assert!((inj - 3.0 / 8.0).abs() < 0.01, "{inj}");
     }
 
     #[test]
@@ -1196,6 +1218,15 @@ mod tests {
             Err(ReplayError::InjectedTooLong { len: 11, limit: 10 })
         );
         assert_eq!(ids(&buf), vec![1, 2, 3]);
+        // The agent's own episodes, however many, never evict injected ones: those have
+        // their own budget on top of the capacity.
+        for id in 10..20 {
+            push_coded(&mut buf, id, 5, true, true);
+        }
+        assert_eq!(buf.num_injected_episodes(), 2);
+        assert_eq!(buf.injected_transitions(), 8);
+        assert_eq!(buf.agent_len_transitions(), 20);
+        assert_eq!(ids(&buf), vec![2, 3, 16, 17, 18, 19]);
         let none = EpisodicReplay::new(config(20).with_max_injected_fraction(0.0));
         assert!(none
             .unwrap()
@@ -1269,7 +1300,7 @@ mod tests {
         push_coded(&mut buf, 2, 4, true, true);
         let b = buf.sample(&mut rng, 8, 0, 2).unwrap();
         check_batch(&b, &[(2, 4, true, false)]);
-        assert_eq!(buf.num_positions(2), 3);
+        assert_eq!(buf.num_positions(2), 4);
     }
 
     #[test]
@@ -1316,8 +1347,8 @@ mod tests {
         let mut rng = NpRng::from_seed(0);
         for _ in 0..20 {
             let b = buf.sample(&mut rng, 64, 120, 8).unwrap();
-            assert!(b.opt_len.iter().all(|&l| l == 8));
-            let real: usize = b.scan_len.iter().map(|s| s + 8).sum();
+            assert!(b.opt_len.iter().all(|&l| (1..=8).contains(&l)));
+            let real: usize = b.scan_len.iter().zip(&b.opt_len).map(|(s, l)| s + l).sum();
             assert_eq!(b.mask.iter().filter(|&&m| m == 1.0).count(), real);
         }
     }

@@ -51,8 +51,15 @@ pub struct TrainConfig {
     pub eval_every: u64,
     /// Deterministic evaluation episodes.
     pub eval_episodes: usize,
-    /// First seed of the held-out evaluation episodes (episode k uses `eval_seed + k`).
+    /// First seed of the validation episodes (episode k uses `eval_seed + k`): the periodic
+    /// evaluations during training, which choose the best agent. Never used for the reported
+    /// test score.
     pub eval_seed: u64,
+    /// First seed of the test episodes (`test_seed + k`), disjoint from the validation ones:
+    /// the final evaluation of the chosen agent and `rdpg eval`'s default.
+    pub test_seed: u64,
+    /// Episodes of the final test evaluation.
+    pub test_episodes: usize,
     /// Master seed of the run.
     pub seed: u64,
 }
@@ -69,6 +76,8 @@ impl Default for TrainConfig {
             eval_every: 5_000,
             eval_episodes: 10,
             eval_seed: 1_000_000,
+            test_seed: 3_000_000,
+            test_episodes: 100,
             seed: 0,
         }
     }
@@ -99,6 +108,27 @@ impl TrainConfig {
         }
         if self.eval_episodes == 0 {
             return bad("train.eval_episodes", "must be at least 1".into());
+        }
+        if self.test_episodes == 0 {
+            return bad("train.test_episodes", "must be at least 1".into());
+        }
+        let overlap = |a: u64, n: usize, b: u64, m: usize| a < b + m as u64 && b < a + n as u64;
+        if overlap(
+            self.eval_seed,
+            self.eval_episodes,
+            self.test_seed,
+            self.test_episodes,
+        ) {
+            return bad(
+                "train.test_seed",
+                format!(
+                    "the test seeds {}..{} overlap the validation seeds {}..{}",
+                    self.test_seed,
+                    self.test_seed + self.test_episodes as u64,
+                    self.eval_seed,
+                    self.eval_seed + self.eval_episodes as u64
+                ),
+            );
         }
         Ok(())
     }

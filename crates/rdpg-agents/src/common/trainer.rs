@@ -17,11 +17,15 @@ pub struct UpdateStats {
     /// loss).
     pub critic_loss: f64,
     /// Actor loss (RDPG: `-Q(o, mu(o))` averaged over real steps; PPO: the KL-penalised
-    /// surrogate, negated).
-    pub actor_loss: f64,
+    /// surrogate, negated); `None` when this update did not train the actor (TD3's
+    /// `policy_delay`).
+    pub actor_loss: Option<f64>,
     /// Mean value estimate (RDPG: `Q(o_i, a_i)` of the first critic over real steps; PPO: the
     /// mean value prediction).
     pub q_mean: f64,
+    /// Share of the batch's windows drawn from injected (teacher) episodes (0 without
+    /// injection and for on-policy learners).
+    pub injected_share: f64,
 }
 
 /// A finished training episode.

@@ -94,8 +94,9 @@ impl From<PpoStats> for UpdateStats {
     fn from(s: PpoStats) -> Self {
         UpdateStats {
             critic_loss: s.value_loss,
-            actor_loss: s.policy_loss,
+            actor_loss: Some(s.policy_loss),
             q_mean: s.value_mean,
+            injected_share: 0.0,
         }
     }
 }

@@ -219,6 +219,9 @@ impl RdpgAgent {
                 for vs in &critic_vs {
                     init_from_rng(vs, &mut rng);
                 }
+                for vs in std::iter::once(&actor_vs).chain(&critic_vs) {
+                    add_forget_bias(vs, cfg.lstm_forget_bias);
+                }
             }
             (actor_vs, actor, critic_vs, critics)
         };
@@ -494,7 +497,7 @@ impl RdpgAgent {
                 }
             }
         }
-        if self.cfg.burn_in_from_stored_state && b.scan > 0 {
+        if self.cfg.burn_in_from_stored_state {
             match &b.stored_state {
                 Some(s) if b.state_dim == self.state_dim() && s.len() == b.n * b.state_dim => {}
                 _ => {
@@ -528,5 +531,22 @@ impl RdpgAgent {
             }
         }
         out
+    }
+}
+
+/// Adds `bias` to the forget-gate slice (`[H, 2H)`, gate order i, f, g, o) of every LSTM's
+/// input bias in `vs`: the trainable counterpart of TensorFlow's `forget_bias` at
+/// initialisation (see [`RdpgConfig::lstm_forget_bias`]).
+fn add_forget_bias(vs: &VarStore, bias: f64) {
+    if bias == 0.0 {
+        return;
+    }
+    for (name, var) in sorted_vars(vs) {
+        if name.ends_with("lstm.bias_ih_l0") {
+            let h = var.size()[0] / 4;
+            tch::no_grad(|| {
+                let _ = var.narrow(0, h, h).g_add_scalar_(bias);
+            });
+        }
     }
 }

@@ -77,6 +77,12 @@ pub struct RdpgConfig {
     /// FC layer (+ ReLU) of the same width (paper Table I "DDPG"); scan and states are then
     /// no-ops.
     pub recurrent: bool,
+    /// Added to the forget-gate bias of every LSTM at initialisation (PyTorch's init plus this
+    /// constant; the bias stays trainable). 0 = PyTorch's `nn.LSTM` init (the default); the
+    /// authors' TensorFlow code used `forget_bias = 1.0`, a constant added to the forget gate
+    /// at every step, which this reproduces at the start of training. The `hardcore-*`
+    /// configs use 1.0, the others 0.
+    pub lstm_forget_bias: f64,
     /// Actor LSTM (or FC) width. Paper: 256.
     pub actor_hidden: usize,
     /// Critic LSTM (or FC) width. Paper: 320.
@@ -126,10 +132,15 @@ pub struct RdpgConfig {
     /// the first.
     pub twin_critic: bool,
     /// Start the actor scan from the acting-time state stored in the replay (R2D2-style) instead
-    /// of zeros. The critic scan always starts from zeros.
+    /// of zeros; with `scan_len = 0` the window itself starts from the stored state (R2D2's
+    /// "stored state, no burn-in"). The critic scan always starts from zeros.
     pub burn_in_from_stored_state: bool,
     /// Target policy smoothing noise on the bootstrap action (TD3); none when `None`.
     pub target_noise: Option<TargetNoise>,
+    /// TD3's delayed policy updates: the actor and the target networks are updated on every
+    /// `policy_delay`-th update only (the critic on every update). 1 = every update (the
+    /// paper's RDPG); TD3 uses 2.
+    pub policy_delay: usize,
     /// Compute the actor gradient with the critic *after* its Adam step (Algorithm 1 order,
     /// which needs a second no-gradient critic scan). `false`: both losses from the same
     /// pre-update forward pass (cheaper).
@@ -158,6 +169,7 @@ impl Default for RdpgConfig {
             lidar_fc: 64,
             body_fc: 192,
             recurrent: true,
+            lstm_forget_bias: 0.0,
             actor_hidden: 256,
             critic_hidden: 320,
             critic_action_fc: 64,
@@ -179,6 +191,7 @@ impl Default for RdpgConfig {
             twin_critic: false,
             burn_in_from_stored_state: false,
             target_noise: None,
+            policy_delay: 1,
             actor_uses_updated_critic: true,
             scan_method: ScanMethod::Grouped,
             device: DeviceSpec::Auto,
@@ -247,6 +260,12 @@ impl RdpgConfig {
                 }
             }
         }
+        if !self.lstm_forget_bias.is_finite() {
+            return Err(bad("lstm_forget_bias", "must be finite"));
+        }
+        if !self.recurrent && self.lstm_forget_bias != 0.0 {
+            return Err(bad("lstm_forget_bias", "needs a recurrent agent (an LSTM)"));
+        }
         positive("actor_hidden", self.actor_hidden)?;
         positive("critic_hidden", self.critic_hidden)?;
         positive("critic_action_fc", self.critic_action_fc)?;
@@ -269,6 +288,7 @@ impl RdpgConfig {
         }
         finite_pos("adam_eps", self.adam_eps)?;
         positive("batch_size", self.batch_size)?;
+        positive("policy_delay", self.policy_delay)?;
         positive("opt_len", self.opt_len)?;
         positive("update_len", self.update_len)?;
         if self.update_len > self.opt_len {

@@ -641,7 +641,9 @@ fn updates_change_weights_and_stats_are_finite() {
         let w0 = agent.weights();
         let s = agent.update(&batch(&cfg, 6, 0.5, 3));
         assert!(
-            s.critic_loss.is_finite() && s.actor_loss.is_finite() && s.q_mean.is_finite(),
+            s.critic_loss.is_finite()
+                && s.actor_loss.is_some_and(f64::is_finite)
+                && s.q_mean.is_finite(),
             "{s:?}"
         );
         let w1 = agent.weights();
@@ -881,4 +883,123 @@ fn exploring_params_swap_in_a_perturbed_actor() {
         reference
     );
     assert!(agent.set_exploring_params(Some(&params[1..])).is_err());
+}
+
+/// TD3's delayed policy updates: with `policy_delay = 2` the critics move on every update,
+/// the actor and every target network only on updates 2, 4, ...; the statistics say which.
+#[test]
+fn policy_delay_moves_actor_and_targets_every_second_update() {
+    let cfg = RdpgConfig {
+        policy_delay: 2,
+        critic_action_fc: 16,
+        actor_hidden: 16,
+        critic_hidden: 16,
+        ..full_cfg()
+    };
+    let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 4).unwrap();
+    let group = |w: &[(String, Vec<f64>)], prefix: &str| -> Vec<Vec<f64>> {
+        w.iter()
+            .filter(|(n, _)| n.starts_with(prefix))
+            .map(|(_, v)| v.clone())
+            .collect()
+    };
+    let mut prev = agent.weights();
+    for k in 1..=4u64 {
+        let s = agent.update(&batch(&cfg, 6, 0.5, 10 + k));
+        let w = agent.weights();
+        let actor_turn = k % 2 == 0;
+        assert_eq!(s.actor_loss.is_some(), actor_turn, "update {k}: {s:?}");
+        assert_ne!(
+            group(&w, "critic"),
+            group(&prev, "critic"),
+            "critic, update {k}"
+        );
+        for prefix in ["actor.", "target.actor.", "target.critic"] {
+            let moved = group(&w, prefix) != group(&prev, prefix);
+            assert_eq!(moved, actor_turn, "{prefix} moved = {moved} on update {k}");
+        }
+        prev = w;
+    }
+    assert_eq!(agent.updates(), 4);
+}
+
+/// R2D2's "stored state, no burn-in": with `scan_len = 0` and stored states the actor's run
+/// along the window starts from the stored state (not from zeros), so the bootstrap action
+/// is the actor's output after the window from that state.
+#[test]
+fn stored_state_without_burn_in_starts_the_window_from_it() {
+    let cfg = RdpgConfig {
+        scan_len: 0,
+        burn_in_from_stored_state: true,
+        ..tiny()
+    };
+    let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 6, Kind::Double).unwrap();
+    let mut b = batch(&cfg, 3, 0.0, 8);
+    let sd = agent.state_dim();
+    b.state_dim = sd;
+    let states: Vec<f32> = (0..3 * sd).map(|i| (i as f32 * 0.37).sin() * 0.5).collect();
+    b.stored_state = Some(states.clone());
+    agent.check_batch(&b).unwrap();
+    let p = agent.prepare(&b);
+    let sc = tch::no_grad(|| agent.scan_all(&p));
+    let (_, a_tail) = tch::no_grad(|| agent.actor_window(&p, &sc));
+    let h = sd / 2;
+    for w in 0..3 {
+        let st = &states[w * sd..(w + 1) * sd];
+        let init = RecState {
+            h: Tensor::from_slice(&st[..h])
+                .to_kind(Kind::Double)
+                .view([1, 1, h as i64]),
+            c: Tensor::from_slice(&st[h..])
+                .to_kind(Kind::Double)
+                .view([1, 1, h as i64]),
+        };
+        let len = b.opt_len[w];
+        let t = b.scan + b.opt;
+        let o = Tensor::from_slice(&b.obs[w * (t + 1) * OBS..(w * (t + 1) + len + 1) * OBS])
+            .to_kind(Kind::Double)
+            .view([1, len as i64 + 1, OBS as i64]);
+        let want = tch::no_grad(|| agent.actor.forward_seq(&o, &init).0.select(1, len as i64));
+        assert_close(
+            &to_vec64(&a_tail.select(0, w as i64)),
+            &to_vec64(&want.squeeze_dim(0)),
+            1e-10,
+            "tail action from the stored state",
+        );
+    }
+    // Without stored states the batch is refused (no silent zero start).
+    b.stored_state = None;
+    assert!(agent.check_batch(&b).is_err());
+}
+
+/// `lstm_forget_bias` adds its value to exactly the forget-gate quarter of each LSTM's input
+/// bias (gate order i, f, g, o), in actor and critics, and changes nothing else.
+#[test]
+fn forget_bias_shifts_only_the_forget_gate() {
+    let base = RdpgAgent::new_with_kind(tiny(), OBS, ACT, 3, Kind::Double).unwrap();
+    let cfg = RdpgConfig {
+        lstm_forget_bias: 1.0,
+        ..tiny()
+    };
+    let shifted = RdpgAgent::new_with_kind(cfg, OBS, ACT, 3, Kind::Double).unwrap();
+    let mut lstms = 0;
+    for ((n, a), (m, b)) in base.weights().iter().zip(&shifted.weights()) {
+        assert_eq!(n, m);
+        if n.ends_with("lstm.bias_ih_l0") {
+            lstms += 1;
+            let h = a.len() / 4;
+            for (k, (x, y)) in a.iter().zip(b).enumerate() {
+                let want = if (h..2 * h).contains(&k) { x + 1.0 } else { *x };
+                assert!((y - want).abs() < 1e-12, "{n}[{k}]: {x} -> {y}");
+            }
+        } else {
+            assert_eq!(a, b, "{n}");
+        }
+    }
+    assert_eq!(lstms, 2, "actor and critic LSTMs");
+    let ff = RdpgConfig {
+        lstm_forget_bias: 1.0,
+        ..tiny().ddpg()
+    };
+    assert!(ff.validate().is_err());
 }

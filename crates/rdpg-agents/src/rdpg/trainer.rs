@@ -63,6 +63,9 @@ struct LoopState {
     noise: Vec<ActionNoise>,
     buffers: Vec<EpisodeBuffer>,
     actor_state: Vec<f32>,
+    /// The trained (clean) actor's states when the envs act with a perturbed copy and the
+    /// replay stores states: what burn-in starts from (empty otherwise).
+    clean_state: Vec<f32>,
     param_noise: Option<ParamNoiseState>,
 }
 
@@ -74,6 +77,9 @@ pub struct OffPolicyTrainer {
     replay: EpisodicReplay,
     collector: Collector,
     act_state: ActorState,
+    /// The trained actor run alongside the exploring one, for the stored states (see
+    /// [`LoopState::clean_state`]); `None` when not needed.
+    clean_state: Option<ActorState>,
     st: LoopState,
 }
 
@@ -137,6 +143,7 @@ impl OffPolicyTrainer {
                 })
                 .collect(),
             actor_state: Vec::new(),
+            clean_state: Vec::new(),
             param_noise: off.param_noise.map(|p| ParamNoiseState {
                 noise: AdaptiveParamNoise::new(ParamNoiseConfig {
                     initial_stddev: p.initial_stddev,
@@ -148,6 +155,8 @@ impl OffPolicyTrainer {
             }),
         };
         let act_state = agent.initial_state(n);
+        let clean_state =
+            (state_dim > 0 && off.param_noise.is_some()).then(|| agent.initial_state(n));
         Ok(Self {
             cfg,
             off,
@@ -155,6 +164,7 @@ impl OffPolicyTrainer {
             replay,
             collector,
             act_state,
+            clean_state,
             st,
         })
     }
@@ -194,18 +204,25 @@ impl OffPolicyTrainer {
                 .set_exploring_params(Some(&pn.acting))
                 .map_err(|e| AgentError::Checkpoint(format!("parameter noise: {e}")))?;
         }
-        let mut act_state = agent.initial_state(n);
         let sd = agent.state_dim();
-        if st.actor_state.len() != n * sd {
-            return Err(AgentError::Checkpoint(
-                "actor state size does not match".into(),
-            ));
-        }
-        for i in 0..n {
-            if sd > 0 {
-                act_state.set_env_state(i, &st.actor_state[i * sd..(i + 1) * sd]);
+        let restore = |v: &[f32]| -> Result<ActorState> {
+            let mut s = agent.initial_state(n);
+            if v.len() != n * sd {
+                return Err(ckpt_err(
+                    &dir.join("loop.bin"),
+                    "actor state size does not match the agent",
+                ));
             }
-        }
+            for i in 0..n {
+                if sd > 0 {
+                    s.set_env_state(i, &v[i * sd..(i + 1) * sd]);
+                }
+            }
+            Ok(s)
+        };
+        let act_state = restore(&st.actor_state)?;
+        let wants_clean = replay.config().state_dim > 0 && off.param_noise.is_some();
+        let clean_state = wants_clean.then(|| restore(&st.clean_state)).transpose()?;
         Ok(Self {
             cfg,
             off,
@@ -213,6 +230,7 @@ impl OffPolicyTrainer {
             replay,
             collector,
             act_state,
+            clean_state,
             st,
         })
     }
@@ -308,9 +326,12 @@ impl Trainer for OffPolicyTrainer {
             if obs_cb.should_stop(self.collector.steps()) {
                 break;
             }
-            // Acting: a_t = mu(o_t, h_{t-1}) + N_t (Algorithm 1), uniform during warm-up.
+            // Acting: a_t = mu(o_t, h_{t-1}) + N_t (Algorithm 1), uniform during warm-up. The
+            // replay stores the trained actor's state h_{t-1} (for burn-in), also when the
+            // envs act with a perturbed copy.
             let states: Vec<Vec<f32>> = if stored {
-                (0..n).map(|i| self.act_state.env_state(i)).collect()
+                let s = self.clean_state.as_ref().unwrap_or(&self.act_state);
+                (0..n).map(|i| s.env_state(i)).collect()
             } else {
                 vec![Vec::new(); n]
             };
@@ -320,6 +341,9 @@ impl Trainer for OffPolicyTrainer {
             }
             let flat: Vec<f32> = self.collector.obs().concat();
             let mu = self.agent.act_exploring(&flat, &mut self.act_state);
+            if let Some(clean) = self.clean_state.as_mut() {
+                let _ = self.agent.act(&flat, clean);
+            }
             let actions: Vec<Vec<f32>> = (0..n)
                 .map(|i| {
                     if warm {
@@ -368,6 +392,9 @@ impl Trainer for OffPolicyTrainer {
                             reason: e.to_string(),
                         })?;
                     self.agent.reset_state(&mut self.act_state, Some(i));
+                    if let Some(clean) = self.clean_state.as_mut() {
+                        self.agent.reset_state(clean, Some(i));
+                    }
                     self.st.noise[i].reset();
                     obs_cb.on_episode(&rec);
                 }
@@ -396,6 +423,10 @@ impl Trainer for OffPolicyTrainer {
         Header::write(dir, TrainerKind::OffPolicy)?;
         self.agent.save(dir.join("agent"))?;
         self.st.actor_state = self.act_state.to_vec();
+        self.st.clean_state = self
+            .clean_state
+            .as_ref()
+            .map_or(Vec::new(), ActorState::to_vec);
         write_bin(&dir.join("replay.bin"), &self.replay)?;
         write_bin(&dir.join("loop.bin"), &self.st)?;
         write_bin(&dir.join("collector.bin"), self.collector.state())?;

@@ -28,6 +28,9 @@
 //!    The critic states `h^C_{i-1}` come from the critic's scan and its run along the replayed
 //!    actions (after the critic's Adam step by default, as Algorithm 1 orders it).
 //! 4. **Targets**: `theta' <- theta' + tau (theta - theta')` when `tau > 0`.
+//!
+//! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
+//! critic steps every time.
 
 use std::time::Instant;
 
@@ -116,7 +119,11 @@ impl RdpgAgent {
         if let Some(c) = self.cfg.grad_clip {
             let _ = self.critic_opt.clip_grad_norm(c);
         }
-        let updated_critic = self.cfg.actor_uses_updated_critic;
+        // TD3's delayed policy update: the actor and the target networks move on every
+        // `policy_delay`-th update only (every update for the paper's RDPG, delay 1).
+        self.updates += 1;
+        let actor_turn = self.updates % self.cfg.policy_delay as u64 == 0;
+        let updated_critic = self.cfg.actor_uses_updated_critic || !actor_turn;
         // Critic states h^C_{i-1} along the window for the actor loss: from the pre-update
         // critic, or (Algorithm 1 order) rescanned after its Adam step.
         let critic_states_old =
@@ -127,52 +134,57 @@ impl RdpgAgent {
         clock.lap(|t| &mut t.critic_step);
 
         // ---- 3. Actor: deterministic policy gradient (Eq. (DPG)), no BPTT by default. ------
-        let critic_states = match critic_states_old {
-            Some(s) => s,
-            None => tch::no_grad(|| {
-                let h = self.scan_critic(&self.critics[0], &p);
-                self.critic_states(&p, &h)
-            }),
-        };
-        clock.lap(|t| &mut t.critic_rescan);
-        let actor_in = match &actor_states {
-            Some((hb, cb)) => ActorInput::Detached { h: hb, c: cb },
-            None => ActorInput::Bptt { h0: &sc.actor },
-        };
-        // The critic is a constant here: no gradients are computed or accumulated for it.
-        for vs in &mut self.critic_vs {
-            vs.freeze();
-        }
-        let actor_loss = actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
-        self.actor_opt.zero_grad();
-        actor_loss.backward();
-        for vs in &mut self.critic_vs {
-            vs.unfreeze();
-        }
-        if let Some(c) = self.cfg.grad_clip {
-            let _ = self.actor_opt.clip_grad_norm(c);
-        }
-        if !updated_critic {
-            self.critic_opt.step();
-        }
-        self.actor_opt.step();
-        clock.lap(|t| &mut t.actor_step);
+        let mut actor_loss_value = None;
+        if actor_turn {
+            let critic_states = match critic_states_old {
+                Some(s) => s,
+                None => tch::no_grad(|| {
+                    let h = self.scan_critic(&self.critics[0], &p);
+                    self.critic_states(&p, &h)
+                }),
+            };
+            clock.lap(|t| &mut t.critic_rescan);
+            let actor_in = match &actor_states {
+                Some((hb, cb)) => ActorInput::Detached { h: hb, c: cb },
+                None => ActorInput::Bptt { h0: &sc.actor },
+            };
+            // The critic is a constant here: no gradients are computed or accumulated for it.
+            for vs in &mut self.critic_vs {
+                vs.freeze();
+            }
+            let loss = actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
+            self.actor_opt.zero_grad();
+            loss.backward();
+            for vs in &mut self.critic_vs {
+                vs.unfreeze();
+            }
+            if let Some(c) = self.cfg.grad_clip {
+                let _ = self.actor_opt.clip_grad_norm(c);
+            }
+            if !updated_critic {
+                self.critic_opt.step();
+            }
+            self.actor_opt.step();
+            actor_loss_value = Some(loss.double_value(&[]));
+            clock.lap(|t| &mut t.actor_step);
 
-        // ---- 4. Soft target update theta' <- theta' + tau (theta - theta'). ---------------
-        if let Some(t) = &mut self.targets {
-            let tau = self.cfg.tau;
-            tch::no_grad(|| {
-                for (tv, sv) in &mut t.pairs {
-                    let _ = tv.lerp_(sv, tau);
-                }
-            });
+            // ---- 4. Soft target update theta' <- theta' + tau (theta - theta'). -----------
+            if let Some(t) = &mut self.targets {
+                let tau = self.cfg.tau;
+                tch::no_grad(|| {
+                    for (tv, sv) in &mut t.pairs {
+                        let _ = tv.lerp_(sv, tau);
+                    }
+                });
+            }
         }
-        self.updates += 1;
         let q_mean = tch::no_grad(|| (&q_sa[0] * &p.mask).sum(self.kind) / p.mask.sum(self.kind));
         let stats = UpdateStats {
             critic_loss: critic_loss.double_value(&[]),
-            actor_loss: actor_loss.double_value(&[]),
+            actor_loss: actor_loss_value,
             q_mean: q_mean.double_value(&[]),
+            injected_share: batch.injected.iter().map(|&x| f64::from(x)).sum::<f64>()
+                / batch.n as f64,
         };
         clock.lap(|t| &mut t.other);
         if let Some(pt) = &mut self.profile {
@@ -315,8 +327,10 @@ impl RdpgAgent {
                 disc[k * ll + i] = gamma.powi((k - i) as i32);
             }
         }
+        // The stored acting-time state of each window's first step (its first scan step, or
+        // with `s = 0` its first optimisation step: R2D2's "stored state, no burn-in").
         let stored = match (&b.stored_state, self.cfg.burn_in_from_stored_state) {
-            (Some(st), true) if s > 0 => {
+            (Some(st), true) => {
                 let h = self.actor.core.state_width();
                 let t = up(st, &[n, 2 * h]);
                 Some(RecState {
