@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use rdpg_agents::rdpg::{
     memory_task_config, ExplorationConfig, OffPolicyConfig, OffPolicyTrainer, ParamNoiseSpec,
+    PerturbSchedule,
 };
 use rdpg_agents::{AgentError, Quiet, RdpgConfig, TrainConfig, Trainer};
 
@@ -57,7 +58,8 @@ fn half_save_load_half_equals_one_go() {
 fn half_save_load_half_equals_one_go_with_parameter_noise() {
     let (train, mut off, agent) = small();
     off.param_noise = Some(ParamNoiseSpec {
-        every_steps: 60,
+        adapt_every_updates: 5,
+        perturb: PerturbSchedule::Steps(60),
         ..ParamNoiseSpec::default()
     });
     let sigma = resume_is_identical(train, off, agent, "param");
@@ -406,7 +408,7 @@ fn stored_states_come_from_the_trained_actor_under_parameter_noise() {
     off.updates_per_step = 0.0; // a fixed actor, so that the episode can be replayed
     off.warmup_steps = 250;
     off.param_noise = Some(ParamNoiseSpec {
-        every_steps: 100,
+        perturb: PerturbSchedule::Steps(100),
         ..ParamNoiseSpec::default()
     });
     agent.burn_in_from_stored_state = true;
@@ -427,4 +429,107 @@ fn stored_states_come_from_the_trained_actor_under_parameter_noise() {
         a.act_exploring(o, &mut exploring);
     }
     assert!(differs, "the exploring copy was never perturbed");
+}
+
+/// Parameter-noise adaptation (Plappert et al.) on a fixed actor: the distance made by one
+/// fresh perturbation is noisy, so σ settles where the *median* distance equals the target
+/// (the rule multiplies and divides by the same factor). From σ ten times too large and ten
+/// times too small, with a coefficient of 1.05 (`ln 10 / ln 1.05` ≈ 47 steps to cross), after
+/// 60 adaptations the median distance of the next 60 is within a factor of 1.5 of the target
+/// and both runs agree on σ within a factor of 2.
+#[test]
+fn parameter_noise_reaches_the_target_distance_on_a_fixed_actor() {
+    use rdpg_agents::rdpg::trainer::adapt_param_noise;
+    use rdpg_core::noise::{AdaptiveParamNoise, ParamNoiseConfig};
+    use rdpg_core::rng::NpRng;
+    let (_, _, mut cfg) = small();
+    cfg.actor_hidden = 32;
+    cfg.trunk = rdpg_agents::rdpg::Trunk::Mlp { hidden: vec![32] };
+    let mut agent = rdpg_agents::RdpgAgent::new(cfg, 2, 1, 7).unwrap();
+    let mut rng = NpRng::from_seed(1);
+    let obs: Vec<f32> = (0..128).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
+    let target = 0.1;
+    let mut sigmas = Vec::new();
+    for initial in [1.0, 0.01] {
+        let mut noise = AdaptiveParamNoise::new(ParamNoiseConfig {
+            initial_stddev: initial,
+            desired_action_stddev: target,
+            adoption_coefficient: 1.05,
+        });
+        let mut distances = Vec::new();
+        for _ in 0..120 {
+            distances.push(adapt_param_noise(&mut agent, &mut noise, &obs, &mut rng).unwrap());
+        }
+        let first = distances[0];
+        assert!(
+            if initial > 0.1 {
+                first > 2.0 * target
+            } else {
+                first < 0.5 * target
+            },
+            "σ = {initial} starts at distance {first}"
+        );
+        let mut tail = distances[60..].to_vec();
+        tail.sort_by(f64::total_cmp);
+        let median = tail[tail.len() / 2];
+        assert!(
+            median > target / 1.5 && median < target * 1.5,
+            "from σ = {initial}: median distance {median} after 60 adaptations"
+        );
+        sigmas.push(noise.sigma);
+    }
+    let ratio = sigmas[0] / sigmas[1];
+    assert!(
+        (0.5..2.0).contains(&ratio),
+        "σ from above {} and from below {}",
+        sigmas[0],
+        sigmas[1]
+    );
+}
+
+/// `truncated` episodes reach the replay with the true last observation (the `final_obs` of
+/// the vector env, not the next episode's reset observation) and the flags kept apart: each
+/// stored episode, replayed in a fresh env from its scheduled seed with its stored actions,
+/// ends on its stored last observation with `truncated` and not `terminated`.
+#[test]
+fn final_observations_and_truncation_reach_the_replay() {
+    use rdpg_agents::common::to_env_action;
+    use rdpg_envs::vector::episode_seed;
+    let (mut train, off, agent) = small();
+    train.total_steps = 1_200; // 3 episodes of 200 steps in each of the 2 envs
+    let mut t = OffPolicyTrainer::new(train.clone(), off, agent).unwrap();
+    t.run(u64::MAX, &mut Quiet).unwrap();
+    let episodes = t.replay().episodes();
+    assert_eq!(episodes.len(), 6);
+    let mut env = rdpg_envs::make_with(&train.env, &train.env_options()).unwrap();
+    let space = env.action_space().clone();
+    let mut seen = Vec::new();
+    for ep in episodes {
+        assert!(ep.truncated && !ep.terminated);
+        let found = (0..2)
+            .flat_map(|i| (0..3).map(move |k| (i, k)))
+            .find(|&(i, k)| {
+                let (o, _) = env.reset(Some(episode_seed(train.seed, i, k))).unwrap();
+                o[..] == ep.obs[..2]
+            })
+            .expect("the episode's first observation comes from its scheduled seed");
+        seen.push(found);
+        let (o, _) = env
+            .reset(Some(episode_seed(train.seed, found.0, found.1)))
+            .unwrap();
+        assert_eq!(o[..], ep.obs[..2]);
+        let n = ep.len();
+        let mut last = None;
+        for k in 0..n {
+            let a = to_env_action(&ep.actions[k..k + 1], &space.low, &space.high);
+            let s = env.step(&a).unwrap();
+            assert_eq!(s.obs[..], ep.obs[(k + 1) * 2..(k + 2) * 2], "step {k}");
+            last = Some(s);
+        }
+        let last = last.unwrap();
+        assert!(last.truncated && !last.terminated);
+    }
+    seen.sort();
+    seen.dedup();
+    assert_eq!(seen.len(), 6);
 }

@@ -7,6 +7,13 @@
 //!
 //! A policy without memory sees the same query observation whatever the cue, so its expected
 //! return is 0; remembering the cue earns 1. Episodes are `delay + 2` steps long.
+//!
+//! `DelayedCue-v0` is the same task with the episode going on after the query: cue at step 0,
+//! query at step 8, blank steps up to step 20, then `terminated`. It tests the paper's central
+//! claim, scanning: a learner whose windows are shorter than the cue-query distance
+//! (`l < 8`) and whose episodes are longer than its windows (`s + l < 20`) sees the query in
+//! windows that start after the cue, and only a scan of `s >= 8` steps before the window
+//! brings the cue back into the recurrent state.
 
 use crate::Renderable;
 use rdpg_core::env::validate_action;
@@ -17,27 +24,52 @@ use rdpg_render::{Scene, Shape};
 /// Blank steps between the cue and the query in `CueMemory-v0`.
 pub const DEFAULT_DELAY: usize = 4;
 
+/// Blank steps between the cue and the query in `DelayedCue-v0`.
+pub const DELAYED_DELAY: usize = 7;
+
+/// Episode length of `DelayedCue-v0`.
+pub const DELAYED_LEN: usize = 20;
+
 /// The cue-recall task.
 pub struct CueMemory {
+    id: &'static str,
     delay: usize,
+    /// Episode length (the query is at step `delay + 1`).
+    len: usize,
     rng: Option<NpRng>,
     cue: f32,
     /// Steps taken in the episode; `None` before the first reset.
     t: Option<usize>,
     last_action: f32,
+    /// The query was answered with the cue's sign.
+    correct: bool,
     obs_space: BoxSpace,
     act_space: BoxSpace,
 }
 
 impl CueMemory {
-    /// A task with `delay` blank steps between cue and query.
+    /// `CueMemory-v0`'s task with `delay` blank steps between cue and query; the episode ends
+    /// on the query.
     pub fn new(delay: usize) -> Self {
+        Self::build("CueMemory-v0", delay, delay + 2)
+    }
+
+    /// `DelayedCue-v0`: cue at step 0, query at step 8, episodes of 20 steps.
+    pub fn delayed() -> Self {
+        Self::build("DelayedCue-v0", DELAYED_DELAY, DELAYED_LEN)
+    }
+
+    fn build(id: &'static str, delay: usize, len: usize) -> Self {
+        assert!(len >= delay + 2, "the episode must reach the query");
         Self {
+            id,
             delay,
+            len,
             rng: None,
             cue: 0.0,
             t: None,
             last_action: 0.0,
+            correct: false,
             obs_space: BoxSpace::uniform(2, -1.0, 1.0),
             act_space: BoxSpace::uniform(1, -1.0, 1.0),
         }
@@ -61,7 +93,7 @@ impl CueMemory {
 
 impl Env for CueMemory {
     fn id(&self) -> &str {
-        "CueMemory-v0"
+        self.id
     }
     fn observation_space(&self) -> &BoxSpace {
         &self.obs_space
@@ -77,6 +109,7 @@ impl Env for CueMemory {
         self.cue = if rng.random() < 0.5 { -1.0 } else { 1.0 };
         self.t = Some(0);
         self.last_action = 0.0;
+        self.correct = false;
         Ok((self.obs(0), EnvInfo::default()))
     }
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
@@ -84,7 +117,7 @@ impl Env for CueMemory {
         let t = self
             .t
             .ok_or(EnvError::NeedsReset("reset before stepping"))?;
-        if t > self.delay + 1 {
+        if t >= self.len {
             return Err(EnvError::NeedsReset("the episode has ended"));
         }
         let a = action[0].clamp(-1.0, 1.0);
@@ -92,23 +125,22 @@ impl Env for CueMemory {
         self.t = Some(t + 1);
         let query = t == self.delay + 1;
         let reward = if query { f64::from(self.cue * a) } else { 0.0 };
+        self.correct |= query && reward > 0.0;
+        let terminated = t + 1 == self.len;
         Ok(Step {
-            obs: if query {
-                vec![0.0, 0.0]
-            } else {
-                self.obs(t + 1)
-            },
+            obs: self.obs(t + 1),
             reward,
-            terminated: query,
+            terminated,
             truncated: false,
             info: EnvInfo {
-                success: query && reward > 0.0,
+                // Reported on the last step, where an episode's success is read.
+                success: terminated && self.correct,
                 stock_reward: None,
             },
         })
     }
     fn max_episode_steps(&self) -> Option<usize> {
-        Some(self.delay + 2)
+        Some(self.len)
     }
 }
 
@@ -160,7 +192,6 @@ mod tests {
                 assert!(!s.truncated);
                 return (ret, len);
             }
-            assert_eq!(s.reward, 0.0);
             obs = s.obs;
         }
     }
@@ -176,6 +207,27 @@ mod tests {
         }
         // Both cues occur about equally often.
         assert!((fixed / 200.0).abs() < 0.2, "{fixed}");
+    }
+
+    #[test]
+    fn delayed_cue_queries_at_step_8_and_runs_to_20() {
+        let mut env = CueMemory::delayed();
+        assert_eq!(env.id(), "DelayedCue-v0");
+        for seed in 0..50 {
+            let (r, len) = run(&mut env, seed, |first| first[0]);
+            assert_eq!((r, len), (1.0, DELAYED_LEN));
+        }
+        let (obs, _) = env.reset(Some(3)).unwrap();
+        assert_ne!(obs[0], 0.0);
+        let mut flags = Vec::new();
+        for _ in 0..DELAYED_LEN {
+            let s = env.step(&[0.5]).unwrap();
+            flags.push(s.obs[1]);
+            assert_eq!(s.terminated, flags.len() == DELAYED_LEN);
+        }
+        // The observation after step 7 is the query (flag 1), acted on at step 8.
+        assert_eq!(flags.iter().position(|&f| f == 1.0), Some(DELAYED_DELAY));
+        assert_eq!(flags.iter().filter(|&&f| f == 1.0).count(), 1);
     }
 
     #[test]

@@ -6,12 +6,13 @@ use crate::{CueMemory, Pendulum, Renderable};
 use rdpg_core::{Env, EnvError};
 
 /// Ids [`make`] knows.
-pub const ENV_IDS: [&str; 5] = [
+pub const ENV_IDS: [&str; 6] = [
     "BipedalWalker-v3",
     "BipedalWalkerHardcore-v3",
     "Pendulum-v1",
     "PendulumNoVel-v1",
     "CueMemory-v0",
+    "DelayedCue-v0",
 ];
 
 /// An environment that can also be drawn: what [`make`] returns.
@@ -36,7 +37,8 @@ pub struct EnvOptions {
 }
 
 /// Builds a registered environment with its time limit (1600 steps for BipedalWalker-v3, 2000
-/// for the hardcore version, 200 for the pendulums, 6 for `CueMemory-v0`).
+/// for the hardcore version, 200 for the pendulums, 6 for `CueMemory-v0`, 20 for
+/// `DelayedCue-v0`).
 pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
     make_with(id, &EnvOptions::default())
 }
@@ -50,14 +52,14 @@ pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvErro
                 reward: opts.reward,
             })?)
         }
-        "Pendulum-v1" | "PendulumNoVel-v1" | "CueMemory-v0" => {
+        "Pendulum-v1" | "PendulumNoVel-v1" | "CueMemory-v0" | "DelayedCue-v0" => {
             if opts.reward != WalkerReward::Stock {
                 return Err(EnvError::Config(format!("{id} has no reward option")));
             }
-            if id == "CueMemory-v0" {
-                Box::new(CueMemory::new(crate::cue::DEFAULT_DELAY))
-            } else {
-                Box::new(Pendulum::new(id == "PendulumNoVel-v1"))
+            match id {
+                "CueMemory-v0" => Box::new(CueMemory::new(crate::cue::DEFAULT_DELAY)),
+                "DelayedCue-v0" => Box::new(CueMemory::delayed()),
+                _ => Box::new(Pendulum::new(id == "PendulumNoVel-v1")),
             }
         }
         _ => return Err(EnvError::UnknownId(id.to_string(), ENV_IDS.join(", "))),

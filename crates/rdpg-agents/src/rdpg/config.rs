@@ -44,6 +44,19 @@ pub enum ScanMethod {
     MaskedLoop,
 }
 
+/// How the critic's regression targets are built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CriticTarget {
+    /// The paper's tail-step bootstrap of the interpolated TD(λ): every step of a window
+    /// bootstraps from the single `Q'` at the window's tail (Eq. (unsyncedinterpolatedTD)).
+    TailBootstrap,
+    /// The classic RDPG of Heess et al. (2015): per-step TD(0), each step bootstrapping from
+    /// `Q'` at the next step along the window (with `update_len = opt_len`, `lambda = 1`,
+    /// `actor_bptt = true`, `scan_len = 0` and target networks, the paper's Table I baseline).
+    PerStepTd0,
+}
+
 /// Target policy smoothing (TD3): clipped Gaussian noise on the bootstrap action.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -119,6 +132,9 @@ pub struct RdpgConfig {
     /// `lambda^i / sum_{j<u} lambda^j` (`rdpg_core::targets::interpolated_td_weights`). 1 =
     /// uniform (the authors' code); 0 keeps only the first step.
     pub lambda: f64,
+    /// How the critic's targets are built: the paper's tail-step bootstrap (default) or the
+    /// classic RDPG's per-step TD(0).
+    pub critic_target: CriticTarget,
     /// Soft target update rate. 0 = no target networks: targets come from the behaviour networks
     /// without gradient (the authors' code). In `(0, 1]`: target networks updated by
     /// `target += tau * (online - target)` after every update.
@@ -185,6 +201,7 @@ impl Default for RdpgConfig {
             update_len: 8,
             scan_len: 24,
             lambda: 1.0,
+            critic_target: CriticTarget::TailBootstrap,
             tau: 0.0,
             actor_bptt: false,
             grad_clip: None,

@@ -23,8 +23,8 @@ pub mod trainer;
 pub mod update;
 
 pub use agent::{ActorState, RdpgAgent};
-pub use config::{memory_task_config, RdpgConfig, ScanMethod, TargetNoise, Trunk};
-pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec};
+pub use config::{memory_task_config, CriticTarget, RdpgConfig, ScanMethod, TargetNoise, Trunk};
+pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
 pub use trainer::{OffPolicyTrainer, RdpgPolicy};
 pub use update::PhaseTimes;
 

@@ -38,15 +38,27 @@ impl Default for ExplorationConfig {
     }
 }
 
+/// When the exploring copy of the actor is re-perturbed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum PerturbSchedule {
+    /// At the start of every episode (of any environment): Algorithm 1's `Noise()` per
+    /// episode, and what Plappert et al. do.
+    Episode,
+    /// Every this many environment steps (over all environments).
+    Steps(u64),
+}
+
 /// Adaptive parameter-space noise on the actor (paper Sec. II-B and Algorithm 1's `Noise()` /
 /// `Denoise()`; Plappert et al. 2018), on top of the action noise.
 ///
-/// Every `every_steps` environment steps after the warm-up, the trainer measures how far the
-/// exploring actor's actions are from the trained actor's on observations sampled from the
-/// replay (zero recurrent state), adapts σ towards `desired_action_stddev`, and perturbs a fresh
-/// copy of the trained actor with `N(0, σ²)` on every parameter. The environments act with that
-/// copy; updates always train the unperturbed actor (the "denoise before Update()" of
-/// Algorithm 1), and evaluations use it too.
+/// The environments act with a copy of the trained actor whose every parameter got
+/// `N(0, σ²)` noise, re-drawn on the `perturb` schedule; updates always train the unperturbed
+/// actor (the "denoise before Update()" of Algorithm 1), and evaluations use it too. Every
+/// `adapt_every_updates` updates, σ adapts as in Plappert et al.: a *fresh* perturbation of
+/// the *current* actor with the current σ is compared with the actor on observations sampled
+/// from the replay (zero recurrent state), and σ is multiplied by `adoption_coefficient` when
+/// the RMS action distance is below `desired_action_stddev`, divided by it otherwise.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ParamNoiseSpec {
@@ -56,8 +68,10 @@ pub struct ParamNoiseSpec {
     pub desired_action_stddev: f64,
     /// Multiplicative step of σ's adaptation (`> 1`).
     pub adoption_coefficient: f64,
-    /// Environment steps (over all environments) between perturbations.
-    pub every_steps: u64,
+    /// Updates between two adaptations of σ (Plappert et al.: 50).
+    pub adapt_every_updates: u64,
+    /// When the acting copy is re-perturbed.
+    pub perturb: PerturbSchedule,
 }
 
 impl Default for ParamNoiseSpec {
@@ -67,7 +81,8 @@ impl Default for ParamNoiseSpec {
             initial_stddev: c.initial_stddev,
             desired_action_stddev: c.desired_action_stddev,
             adoption_coefficient: c.adoption_coefficient,
-            every_steps: 1000,
+            adapt_every_updates: 50,
+            perturb: PerturbSchedule::Episode,
         }
     }
 }
@@ -126,13 +141,15 @@ impl OffPolicyConfig {
                 && p.desired_action_stddev > 0.0
                 && p.adoption_coefficient.is_finite()
                 && p.adoption_coefficient > 1.0
-                && p.every_steps > 0;
+                && p.adapt_every_updates > 0
+                && p.perturb != PerturbSchedule::Steps(0);
             if !ok {
                 return bad(
                     "off_policy.param_noise",
                     format!(
                         "needs initial_stddev > 0, desired_action_stddev > 0, \
-                         adoption_coefficient > 1 and every_steps > 0 (got {p:?})"
+                         adoption_coefficient > 1, adapt_every_updates > 0 and a positive \
+                         perturb.steps (got {p:?})"
                     ),
                 );
             }

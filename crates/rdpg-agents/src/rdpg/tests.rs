@@ -571,6 +571,45 @@ fn bptt_and_per_step_gradients_differ_but_agree_on_the_first_step() {
         );
     }
     assert_close(&grads[0], &grads[1], 1e-12, "l = 1");
+
+    // With l = 3 the BPTT gradient also flows through the actor's state into earlier steps,
+    // so the two differ.
+    let mut grads = Vec::new();
+    for bptt in [false, true] {
+        let cfg = RdpgConfig {
+            actor_bptt: bptt,
+            opt_len: 3,
+            update_len: 3,
+            ..tiny()
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 23, Kind::Double).unwrap();
+        let b = batch(&cfg, 4, 0.0, 10);
+        let p = agent.prepare(&b);
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        let (states, _) = tch::no_grad(|| agent.actor_window(&p, &sc));
+        let cs = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
+        let input = match &states {
+            Some((h, c)) => ActorInput::Detached { h, c },
+            None => ActorInput::Bptt { h0: &sc.actor },
+        };
+        agent.actor_opt.zero_grad();
+        actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs).backward();
+        let g: Vec<f64> = sorted_vars(&agent.actor_vs)
+            .iter()
+            .flat_map(|(_, v)| to_vec64(&v.grad()))
+            .collect();
+        grads.push(g);
+    }
+    let diff: f64 = grads[0]
+        .iter()
+        .zip(&grads[1])
+        .map(|(a, b)| (a - b).abs())
+        .sum();
+    let size: f64 = grads[0].iter().map(|a| a.abs()).sum();
+    assert!(
+        diff > 1e-6 * size,
+        "l = 3: BPTT and per-step gradients agree ({diff} vs {size})"
+    );
 }
 
 fn full_cfg() -> RdpgConfig {
@@ -1002,4 +1041,222 @@ fn forget_bias_shifts_only_the_forget_gate() {
         ..tiny().ddpg()
     };
     assert!(ff.validate().is_err());
+}
+
+/// Rewards on padded steps (which the replay leaves at 0, but a buggy producer might not)
+/// change neither the TD targets on real steps nor the critic loss.
+#[test]
+fn padded_rewards_do_not_reach_targets_or_loss() {
+    let cfg = tiny();
+    let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 2, Kind::Double).unwrap();
+    let clean = batch(&cfg, 8, 0.7, 31);
+    let mut dirty = clean.clone();
+    for (r, m) in dirty.rewards.iter_mut().zip(&clean.mask) {
+        if *m == 0.0 {
+            *r = 5.0;
+        }
+    }
+    assert_ne!(dirty.rewards, clean.rewards, "the batch has padding");
+    let boot: Vec<f64> = (0..8).map(|i| 0.3 * i as f64 - 1.0).collect();
+    let (y0, y1) = (
+        targets_for(&agent, &clean, &boot),
+        targets_for(&agent, &dirty, &boot),
+    );
+    let mask: Vec<f64> = clean
+        .mask
+        .chunks(clean.scan + clean.opt)
+        .flat_map(|m| m[clean.scan..].iter().map(|&x| f64::from(x)))
+        .collect();
+    for ((a, b), m) in y0.iter().zip(&y1).zip(&mask) {
+        if *m == 1.0 {
+            assert_eq!(a, b);
+        }
+    }
+    let loss = |b: &SequenceBatch| {
+        let p = agent.prepare(b);
+        let q = Tensor::zeros([8, cfg.opt_len as i64], (Kind::Double, Device::Cpu));
+        let y = td_targets(&p, &Tensor::from_slice(&boot));
+        critic_loss_from(&p, &q, &y).double_value(&[])
+    };
+    assert_eq!(loss(&clean), loss(&dirty));
+}
+
+/// Twin critics: the bootstrap is the minimum of the two target critics' values, value for
+/// value; raising one critic's output above the other changes nothing, lowering it moves the
+/// bootstrap exactly by the shift.
+#[test]
+fn twin_bootstrap_is_the_elementwise_minimum() {
+    let cfg = RdpgConfig {
+        tau: 0.1,
+        twin_critic: true,
+        ..tiny()
+    };
+    let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 12, Kind::Double).unwrap();
+    let b = batch(&cfg, 6, 0.5, 4);
+    let p = agent.prepare(&b);
+    let boot = |agent: &RdpgAgent| {
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        let (_, a_tail) = tch::no_grad(|| agent.actor_window(&p, &sc));
+        let q = tch::no_grad(|| agent.target_tail_q(&p, &sc, &a_tail)).unwrap();
+        to_vec64(&q)
+    };
+    let base = boot(&agent);
+    let shift = |delta: f64| {
+        let t = agent.targets.as_ref().unwrap();
+        let head = sorted_vars(&t.critic_vs[1])
+            .into_iter()
+            .find(|(n, _)| n.ends_with("head.bias"))
+            .unwrap()
+            .1;
+        tch::no_grad(|| {
+            let mut h = head.shallow_clone();
+            let _ = h.g_add_scalar_(delta);
+        });
+    };
+    // Each critic alone, to know which is smaller.
+    let single = |i: usize| {
+        let t = agent.targets.as_ref().unwrap();
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        let (_, a_tail) = tch::no_grad(|| agent.actor_window(&p, &sc));
+        to_vec64(&tch::no_grad(|| {
+            super::update::tail_q(
+                &p,
+                &super::update::critic_window(
+                    &t.critics[i],
+                    &p,
+                    &sc.target_critics[i],
+                    Some(&a_tail),
+                ),
+            )
+        }))
+    };
+    let (q1, q2) = (single(0), single(1));
+    for i in 0..6 {
+        assert_eq!(base[i], q1[i].min(q2[i]));
+    }
+    shift(100.0);
+    assert_close(
+        &boot(&agent),
+        &q1,
+        1e-12,
+        "critic 2 raised: critic 1 is the minimum",
+    );
+    shift(-200.0);
+    let want: Vec<f64> = q2.iter().map(|q| q - 100.0).collect();
+    assert_close(&boot(&agent), &want, 1e-9, "critic 2 lowered by 100");
+}
+
+/// Target policy smoothing: the noise is clipped at `clip` before it is added, and the
+/// smoothed action stays in `[-1, 1]`.
+#[test]
+fn target_noise_is_clipped_then_the_action_clamped() {
+    let mut agent = RdpgAgent::new_with_kind(tiny(), OBS, ACT, 1, Kind::Double).unwrap();
+    let a = Tensor::from_slice(&[0.0f64, 0.9, -0.95, 0.3]).view([2, 2]);
+    let mut clipped = 0;
+    for _ in 0..200 {
+        let s = to_vec64(&agent.smooth_target_action(&a, 10.0, 0.5));
+        for (x, y) in to_vec64(&a).iter().zip(&s) {
+            assert!((-1.0..=1.0).contains(y), "{y}");
+            let d = y - x;
+            assert!(d.abs() <= 0.5 + 1e-12, "noise {d}");
+            if (y.abs() - 1.0).abs() > 1e-12 && (d.abs() - 0.5).abs() < 1e-12 {
+                clipped += 1;
+            }
+        }
+    }
+    // With σ = 10 almost every draw is clipped to ±0.5 (unless clamped at ±1).
+    assert!(clipped > 300, "{clipped}");
+}
+
+/// The soft update: after an update, every target variable is exactly
+/// `target + τ (online - target)` of the values before the step.
+#[test]
+fn soft_update_moves_targets_by_tau() {
+    let cfg = RdpgConfig {
+        tau: 0.25,
+        critic_action_fc: 16,
+        actor_hidden: 16,
+        critic_hidden: 16,
+        ..tiny()
+    };
+    let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 5, Kind::Double).unwrap();
+    // One update so that online and target differ, then check the next one.
+    agent.update(&batch(&cfg, 6, 0.5, 1));
+    let before = agent.weights();
+    agent.update(&batch(&cfg, 6, 0.5, 2));
+    let after = agent.weights();
+    let get = |w: &[(String, Vec<f64>)], n: &str| w.iter().find(|(m, _)| m == n).unwrap().1.clone();
+    let mut checked = 0;
+    for (name, old_target) in before.iter().filter(|(n, _)| n.starts_with("target.")) {
+        let online = get(&after, &name["target.".len()..]);
+        let new_target = get(&after, name);
+        for ((t0, o), t1) in old_target.iter().zip(&online).zip(&new_target) {
+            let want = t0 + 0.25 * (o - t0);
+            assert!((t1 - want).abs() < 1e-12, "{name}: {t1} vs {want}");
+        }
+        assert_ne!(old_target, &new_target, "{name} did not move");
+        checked += 1;
+    }
+    assert!(checked >= 10, "{checked} target variables");
+}
+
+/// The classic RDPG's per-step TD(0) targets against a direct computation: for every real
+/// step `i` of every window, the target actor and critic run from the start of the window over
+/// the replayed prefix `o_0..o_{i+1}`, `a_0..a_i` and the target action at `o_{i+1}`:
+/// `y_i = r_i + gamma Q'(o_{i+1}, mu'(o_{i+1}) | h'_i)`, without the bootstrap after a
+/// terminal step.
+#[test]
+fn per_step_td0_targets_match_a_direct_computation() {
+    let cfg = RdpgConfig {
+        critic_target: super::config::CriticTarget::PerStepTd0,
+        scan_len: 0,
+        opt_len: 4,
+        update_len: 4,
+        tau: 0.1,
+        twin_critic: false,
+        ..tiny()
+    };
+    let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 17, Kind::Double).unwrap();
+    let b = batch(&cfg, 10, 0.7, 21);
+    let p = agent.prepare(&b);
+    let sc = tch::no_grad(|| agent.scan_all(&p));
+    let y = to_vec64(&tch::no_grad(|| agent.per_step_targets(&p, &sc)));
+    let t = agent.targets.as_ref().unwrap();
+    let (l, steps) = (b.opt, b.scan + b.opt);
+    let mut checked = 0;
+    for w in 0..b.n {
+        let len = b.opt_len[w];
+        for i in 0..len {
+            let obs =
+                Tensor::from_slice(&b.obs[w * (steps + 1) * OBS..(w * (steps + 1) + i + 2) * OBS])
+                    .to_kind(Kind::Double)
+                    .view([1, i as i64 + 2, OBS as i64]);
+            let z = |h: i64| RecState::zeros(1, h, Kind::Double, Device::Cpu);
+            let (mu, _) = tch::no_grad(|| t.actor.forward_seq(&obs, &z(4)));
+            let next_a = mu.select(1, i as i64 + 1).view([1, 1, ACT as i64]);
+            let acts = Tensor::from_slice(&b.actions[w * steps * ACT..(w * steps + i + 1) * ACT])
+                .to_kind(Kind::Double)
+                .view([1, i as i64 + 1, ACT as i64]);
+            let acts = Tensor::cat(&[acts, next_a], 1);
+            let (q, _) = tch::no_grad(|| t.critics[0].forward_seq(&obs, &acts, &z(5)));
+            let q_next = q.double_value(&[0, i as i64 + 1]);
+            let terminal = b.tail_terminated[w] == 1.0 && i + 1 == len;
+            let r = f64::from(b.rewards[w * steps + i]);
+            let want = r + if terminal { 0.0 } else { cfg.gamma * q_next };
+            assert!(
+                (y[w * l + i] - want).abs() < 1e-10,
+                "window {w}, step {i}: {} vs {want}",
+                y[w * l + i]
+            );
+            checked += 1;
+        }
+        for i in len..l {
+            assert_eq!(y[w * l + i], 0.0, "padding");
+        }
+    }
+    assert!(checked > 20, "{checked}");
+    assert!(
+        b.tail_terminated.contains(&1.0),
+        "the batch has a terminal window"
+    );
 }

@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 use super::agent::{ActorState, RdpgAgent};
 use super::config::RdpgConfig;
 use super::inject::TeacherFile;
-use super::off_policy::{ExplorationConfig, OffPolicyConfig};
+use super::off_policy::{ExplorationConfig, OffPolicyConfig, PerturbSchedule};
 use crate::common::checkpoint::{
     ckpt_err, read_bin, read_json, write_bin, write_json, Header, TrainerKind,
 };
@@ -46,12 +46,15 @@ struct EpisodeBuffer {
 }
 
 /// The parameter noise of a run: σ, the perturbed parameters the envs act with (empty before
-/// the first perturbation) and when to perturb next.
+/// the first perturbation), whether to perturb before the next step and when by the step
+/// schedule, and the updates since σ last adapted.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 struct ParamNoiseState {
     noise: AdaptiveParamNoise,
     acting: Vec<f32>,
+    perturb_now: bool,
     next_perturb: u64,
+    updates_since_adapt: u64,
 }
 
 /// The off-policy loop's own state, saved with a checkpoint as `loop.bin` (the collector's is
@@ -151,7 +154,9 @@ impl OffPolicyTrainer {
                     adoption_coefficient: p.adoption_coefficient,
                 }),
                 acting: Vec::new(),
+                perturb_now: true,
                 next_perturb: 0,
+                updates_since_adapt: 0,
             }),
         };
         let act_state = agent.initial_state(n);
@@ -260,41 +265,65 @@ impl OffPolicyTrainer {
         self.st.param_noise.as_ref().map(|p| p.noise.sigma)
     }
 
-    /// Algorithm 1's `Noise()`: when due, adapts σ to the distance the current perturbation
-    /// makes and explores from now on with a freshly perturbed copy of the trained actor.
+    /// Algorithm 1's `Noise()`: when due (an episode started, or the step schedule says so),
+    /// explores from now on with a freshly perturbed copy of the trained actor.
     fn perturb_actor_if_due(&mut self) -> Result<()> {
-        let Some(pn) = self.st.param_noise.as_mut() else {
+        let (Some(pn), Some(spec)) = (self.st.param_noise.as_mut(), self.off.param_noise) else {
             return Ok(());
         };
         let steps = self.collector.steps();
-        if steps < pn.next_perturb {
+        let due = match spec.perturb {
+            PerturbSchedule::Episode => pn.perturb_now,
+            PerturbSchedule::Steps(k) => {
+                let due = pn.acting.is_empty() || steps >= pn.next_perturb;
+                if due {
+                    pn.next_perturb = steps + k;
+                }
+                due
+            }
+        };
+        if !due {
             return Ok(());
         }
-        if !pn.acting.is_empty() {
-            if let Some(b) = self.replay.sample(&mut self.st.rng, 64, 0, 1) {
-                // obs [n, 2, obs_dim]: the first step of each window.
-                let d = b.obs_dim;
-                let obs: Vec<f32> = (0..b.n)
-                    .flat_map(|i| b.obs[i * 2 * d..i * 2 * d + d].iter().copied())
-                    .collect();
-                let perturbed = self
-                    .agent
-                    .act_exploring(&obs, &mut self.agent.initial_state(b.n));
-                let clean = self.agent.act(&obs, &mut self.agent.initial_state(b.n));
-                pn.noise.adapt(action_distance(&perturbed, &clean));
-            }
-        }
+        pn.perturb_now = false;
         let mut params = self.agent.actor_params();
         pn.noise.perturb(&mut params, &mut self.st.rng);
         self.agent.set_exploring_params(Some(&params))?;
         pn.acting = params;
-        pn.next_perturb = steps + self.off.param_noise.map_or(1, |p| p.every_steps);
+        Ok(())
+    }
+
+    /// Adapts σ after every `adapt_every_updates` updates (Plappert et al.): the distance is
+    /// measured between the current actor and a fresh perturbation of it with the current σ,
+    /// on the first observations of 64 windows sampled from the replay; then the acting copy
+    /// is put back.
+    fn adapt_param_noise_if_due(&mut self) -> Result<()> {
+        let (Some(pn), Some(spec)) = (self.st.param_noise.as_mut(), self.off.param_noise) else {
+            return Ok(());
+        };
+        pn.updates_since_adapt += 1;
+        if pn.updates_since_adapt < spec.adapt_every_updates {
+            return Ok(());
+        }
+        pn.updates_since_adapt = 0;
+        let Some(b) = self.replay.sample(&mut self.st.rng, 64, 0, 1) else {
+            return Ok(());
+        };
+        // obs [n, 2, obs_dim]: the first step of each window.
+        let d = b.obs_dim;
+        let obs: Vec<f32> = (0..b.n)
+            .flat_map(|i| b.obs[i * 2 * d..i * 2 * d + d].iter().copied())
+            .collect();
+        adapt_param_noise(&mut self.agent, &mut pn.noise, &obs, &mut self.st.rng)?;
+        if !pn.acting.is_empty() {
+            self.agent.set_exploring_params(Some(&pn.acting))?;
+        }
         Ok(())
     }
 
     /// Algorithm 1's `Update()` on sampled sub-trajectories, as many as the update rate has
     /// accrued.
-    fn update_as_due(&mut self, n: usize, obs_cb: &mut dyn TrainObserver) {
+    fn update_as_due(&mut self, n: usize, obs_cb: &mut dyn TrainObserver) -> Result<()> {
         self.st.update_debt += self.off.updates_per_step * n as f64;
         let c = self.agent.config();
         let (b, s, l) = (c.batch_size, c.scan_len, c.opt_len);
@@ -312,7 +341,9 @@ impl OffPolicyTrainer {
             };
             let stats = self.agent.update(&batch);
             obs_cb.on_update(steps, &stats);
+            self.adapt_param_noise_if_due()?;
         }
+        Ok(())
     }
 }
 
@@ -396,11 +427,14 @@ impl Trainer for OffPolicyTrainer {
                         self.agent.reset_state(clean, Some(i));
                     }
                     self.st.noise[i].reset();
+                    if let Some(pn) = self.st.param_noise.as_mut() {
+                        pn.perturb_now = true;
+                    }
                     obs_cb.on_episode(&rec);
                 }
             }
             if !warm && self.replay.num_episodes() > 0 {
-                self.update_as_due(n, obs_cb);
+                self.update_as_due(n, obs_cb)?;
             }
             if self.collector.eval_due() {
                 let rec = self.evaluate()?;
@@ -477,6 +511,28 @@ impl<A: Borrow<RdpgAgent>> DeterministicPolicy for RdpgPolicy<A> {
     fn act(&mut self, obs: &[f32]) -> Vec<f32> {
         self.agent.borrow().act(obs, &mut self.state)
     }
+}
+
+/// One adaptation of parameter noise (Plappert et al. 2018): perturbs a fresh copy of the
+/// agent's trained actor with `N(0, σ²)` (drawn from `rng`), measures the RMS distance between
+/// its actions and the trained actor's on `obs` (`[n, obs_dim]`, each from a zero recurrent
+/// state), and adapts σ towards `noise.desired_action_stddev`. Returns the distance. The
+/// agent's exploring copy is left holding the fresh perturbation.
+pub fn adapt_param_noise(
+    agent: &mut RdpgAgent,
+    noise: &mut AdaptiveParamNoise,
+    obs: &[f32],
+    rng: &mut NpRng,
+) -> Result<f64> {
+    let n = obs.len() / agent.obs_dim();
+    let mut params = agent.actor_params();
+    noise.perturb(&mut params, rng);
+    agent.set_exploring_params(Some(&params))?;
+    let perturbed = agent.act_exploring(obs, &mut agent.initial_state(n));
+    let clean = agent.act(obs, &mut agent.initial_state(n));
+    let distance = action_distance(&perturbed, &clean);
+    noise.adapt(distance);
+    Ok(distance)
 }
 
 fn make_noise(cfg: &ExplorationConfig, dim: usize) -> ActionNoise {

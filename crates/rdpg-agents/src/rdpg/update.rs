@@ -29,6 +29,11 @@
 //!    actions (after the critic's Adam step by default, as Algorithm 1 orders it).
 //! 4. **Targets**: `theta' <- theta' + tau (theta - theta')` when `tau > 0`.
 //!
+//! `critic_target = "per_step_td0"` replaces step 2's targets with the classic RDPG's (Heess
+//! et al. 2015, the paper's Table I baseline): per-step TD(0),
+//! `y_i = r_i + gamma Q'(o_{i+1}, mu'(o_{i+1}) | h'_i) (1 - term_i)`, each step bootstrapping
+//! from the next one along the window ([`RdpgAgent::per_step_targets`]).
+//!
 //! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
 //! critic steps every time.
 
@@ -40,6 +45,7 @@ use serde::{Deserialize, Serialize};
 use tch::Tensor;
 
 use super::agent::RdpgAgent;
+use super::config::CriticTarget;
 use super::lstm::{scan_state, RecState};
 use super::nets::{Actor, Critic};
 use crate::common::UpdateStats;
@@ -106,9 +112,24 @@ impl RdpgAgent {
         let target_q_tail = tch::no_grad(|| self.target_tail_q(&p, &sc, &a_tail));
         clock.lap(|t| &mut t.window_nograd);
 
-        // ---- 2b. Critic: tail-step bootstrap of the interpolated TD (Eq. (unsynced...)). ---
-        let (q_sa, q_tail) = self.critic_forward(&p, &sc, &a_tail, target_q_tail);
-        let y = tch::no_grad(|| td_targets(&p, &q_tail)); // [N, l]
+        // ---- 2b. Critic: tail-step bootstrap of the interpolated TD (Eq. (unsynced...)), or
+        // the classic RDPG's per-step TD(0) (Heess et al. 2015). ------------------------------
+        let (q_sa, y) = match self.cfg.critic_target {
+            CriticTarget::TailBootstrap => {
+                let (q_sa, q_tail) = self.critic_forward(&p, &sc, &a_tail, target_q_tail);
+                (q_sa, tch::no_grad(|| td_targets(&p, &q_tail))) // [N, l]
+            }
+            CriticTarget::PerStepTd0 => {
+                let y = tch::no_grad(|| self.per_step_targets(&p, &sc)); // [N, l]
+                let q_sa = self
+                    .critics
+                    .iter()
+                    .zip(&sc.critics)
+                    .map(|(c, h)| critic_window(c, &p, h, None))
+                    .collect();
+                (q_sa, y)
+            }
+        };
         let critic_loss = q_sa
             .iter()
             .map(|q| critic_loss_from(&p, q, &y))
@@ -264,6 +285,58 @@ impl RdpgAgent {
         (qs.iter().map(|q| q.narrow(1, 0, p.l)).collect(), q_tail)
     }
 
+    /// The classic RDPG's targets (Heess et al. 2015), per step (call without gradient):
+    /// `y_i = r_i + gamma Q'(o_{i+1}, mu'(o_{i+1}) | h'_i) (1 - term_i)`, `[N, l]`, 0 on
+    /// padding. `mu'` runs along the window from its scanned state (`l + 1` slots, the tail
+    /// included); each target critic runs along the replayed actions, and from its state
+    /// after step `i` takes one cell step on `(o_{i+1}, mu'(o_{i+1}))`; the minimum over twin
+    /// critics. Only the last real step of a terminated episode has `term_i = 1`. `Q'`, `mu'`
+    /// are the target networks when `tau > 0`, else the behaviour networks.
+    pub(super) fn per_step_targets(&mut self, p: &Prepared, sc: &Scanned) -> Tensor {
+        let (n, l) = (p.n, p.l);
+        let (actor, actor_h) = match (&self.targets, &sc.target_actor) {
+            (Some(t), Some(h)) => (&t.actor, h),
+            _ => (&self.actor, &sc.actor),
+        };
+        let (mu, _) = actor.forward_seq(&p.obs_win, actor_h); // [N, l+1, A]
+        let mut next_a = mu.narrow(1, 1, l); // mu'(o_{i+1}), [N, l, A]
+        if let Some(noise) = self.cfg.target_noise {
+            next_a = self.smooth_target_action(&next_a, noise.std, noise.clip);
+        }
+        let next_obs = p.obs_win.narrow(1, 1, l); // [N, l, D]
+        let d = next_obs.size()[2];
+        let a_dim = next_a.size()[2];
+        let (critics, critic_h): (Vec<&Critic>, &[RecState]) = match &self.targets {
+            Some(t) => (t.critics.iter().collect(), &sc.target_critics),
+            None => (self.critics.iter().collect(), &sc.critics),
+        };
+        let qs: Vec<Tensor> = critics
+            .iter()
+            .zip(critic_h)
+            .map(|(c, h)| {
+                // States after each replayed step i = before slot i + 1: [N, l, H].
+                let x = c.input_seq(&p.obs_win.narrow(1, 0, l), &p.act_win);
+                let (_, hb, cb, fin) = c.core.stepwise(&x, h);
+                let after = |before: &Tensor, last: &Tensor| {
+                    Tensor::cat(&[before.narrow(1, 1, l - 1), last.transpose(0, 1)], 1)
+                };
+                let hc = hb.size()[2];
+                let st = RecState {
+                    h: after(&hb, &fin.h).reshape([1, n * l, hc]),
+                    c: after(&cb, &fin.c).reshape([1, n * l, hc]),
+                };
+                let (q, _) = c.step(
+                    &next_obs.reshape([n * l, d]),
+                    &next_a.reshape([n * l, a_dim]),
+                    &st,
+                );
+                q.reshape([n, l])
+            })
+            .collect();
+        let q_next = min_all(&qs); // [N, l]
+        (&p.rew + &q_next * &p.step_not_done * self.cfg.gamma) * &p.mask
+    }
+
     /// Clipped Gaussian noise on the bootstrap action (target policy smoothing), drawn from the
     /// agent's own generator so that checkpoints resume identically.
     pub(super) fn smooth_target_action(&mut self, a: &Tensor, std: f64, clip: f64) -> Tensor {
@@ -309,10 +382,12 @@ impl RdpgAgent {
         let mut critic_w = vec![0.0; nn * ll];
         let mut actor_w = vec![0.0; nn * ll];
         let mut not_term = vec![0.0; nn];
+        let mut step_not_done = vec![1.0; nn * ll];
         for i in 0..nn {
             let len = b.opt_len[i];
             onehot[i * (ll + 1) + len] = 1.0;
             not_term[i] = 1.0 - f64::from(b.tail_terminated[i]);
+            step_not_done[i * ll + len - 1] = not_term[i];
             for j in 0..len {
                 mask[i * ll + j] = 1.0;
                 boot_coef[i * ll + j] = gamma.powi((len - j) as i32);
@@ -352,6 +427,7 @@ impl RdpgAgent {
             mask: up64(mask, &[n, l]),
             tail_onehot: up64(onehot, &[n, l + 1]),
             not_term: up64(not_term, &[n]),
+            step_not_done: up64(step_not_done, &[n, l]),
             boot_coef: up64(boot_coef, &[n, l]),
             disc: up64(disc, &[l, l]),
             critic_w: up64(critic_w, &[n, l]),
@@ -436,6 +512,9 @@ pub(super) struct Prepared {
     pub(super) tail_onehot: Tensor,
     /// `[N]`: `1 - tail_terminated`.
     pub(super) not_term: Tensor,
+    /// `[N, l]`: 0 on the last real step of a window whose tail is terminal, else 1 (the
+    /// per-step TD(0) targets' `1 - term_i`).
+    pub(super) step_not_done: Tensor,
     /// `[N, l]`: `gamma^(len - i)` on real steps.
     pub(super) boot_coef: Tensor,
     /// `[l, l]`: `gamma^(k - i)` for `k >= i`.
