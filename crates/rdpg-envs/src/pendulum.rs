@@ -80,34 +80,41 @@ impl Env for Pendulum {
         &self.act_space
     }
     fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        if let Some(s) = seed {
-            self.rng = Some(NpRng::from_seed(s));
-        }
-        let rng = self.rng.get_or_insert_with(NpRng::from_entropy);
-        let th = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
-        let thdot = rng.uniform(-1.0, 1.0);
-        self.state = Some([th, thdot]);
-        self.last_u = 0.0;
-        Ok((self.obs([th, thdot]), EnvInfo::default()))
+        // Physics in IEEE mode whatever the thread (learners flush subnormals).
+        rdpg_core::fpmode::with_ieee_denormals(|| {
+            if let Some(s) = seed {
+                self.rng = Some(NpRng::from_seed(s));
+            }
+            let rng = self.rng.get_or_insert_with(NpRng::from_entropy);
+            let th = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);
+            let thdot = rng.uniform(-1.0, 1.0);
+            self.state = Some([th, thdot]);
+            self.last_u = 0.0;
+            Ok((self.obs([th, thdot]), EnvInfo::default()))
+        })
     }
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
-        validate_action(&self.act_space, action)?;
-        let [th, thdot] = self
-            .state
-            .ok_or(EnvError::NeedsReset("reset before stepping"))?;
-        let u = action[0].clamp(-MAX_TORQUE, MAX_TORQUE);
-        self.last_u = u;
-        let costs = angle_normalize(th).powi(2) + 0.1 * thdot.powi(2) + (0.001f32 * (u * u)) as f64;
-        let newthdot = thdot + (3.0 * G / 2.0 * th.sin() + (3.0f32 * u) as f64) * DT;
-        let newthdot = newthdot.clamp(-MAX_SPEED, MAX_SPEED);
-        let newth = th + newthdot * DT;
-        self.state = Some([newth, newthdot]);
-        Ok(Step {
-            obs: self.obs([newth, newthdot]),
-            reward: -costs,
-            terminated: false,
-            truncated: false,
-            info: EnvInfo::default(),
+        // Physics in IEEE mode whatever the thread (learners flush subnormals).
+        rdpg_core::fpmode::with_ieee_denormals(|| {
+            validate_action(&self.act_space, action)?;
+            let [th, thdot] = self
+                .state
+                .ok_or(EnvError::NeedsReset("reset before stepping"))?;
+            let u = action[0].clamp(-MAX_TORQUE, MAX_TORQUE);
+            self.last_u = u;
+            let costs =
+                angle_normalize(th).powi(2) + 0.1 * thdot.powi(2) + (0.001f32 * (u * u)) as f64;
+            let newthdot = thdot + (3.0 * G / 2.0 * th.sin() + (3.0f32 * u) as f64) * DT;
+            let newthdot = newthdot.clamp(-MAX_SPEED, MAX_SPEED);
+            let newth = th + newthdot * DT;
+            self.state = Some([newth, newthdot]);
+            Ok(Step {
+                obs: self.obs([newth, newthdot]),
+                reward: -costs,
+                terminated: false,
+                truncated: false,
+                info: EnvInfo::default(),
+            })
         })
     }
     fn max_episode_steps(&self) -> Option<usize> {

@@ -174,3 +174,23 @@ fn whole_episodes_match_gymnasium() {
     );
     eprintln!("checked {total} steps against Gymnasium");
 }
+
+/// Learners flush subnormals to zero on their threads, and with one worker the vector env
+/// steps on the learner's thread: the physics must stay Gymnasium's anyway. Every trace is
+/// replayed again on a thread that flushes subnormals (FTZ/DAZ), and must still match.
+#[test]
+fn episodes_match_gymnasium_on_a_thread_that_flushes_denormals() {
+    let exact = rdpg_box2d::is_pybox2d_core();
+    rdpg_core::fpmode::set_flush_denormal(true);
+    let flushing = rdpg_core::fpmode::flushes_denormals();
+    for f in fixtures() {
+        if let Err(Mismatch(m)) = check_file(&f, exact) {
+            panic!("with FTZ/DAZ on the thread: {m}");
+        }
+    }
+    assert!(
+        rdpg_core::fpmode::flushes_denormals() == flushing,
+        "stepping restores the thread's mode"
+    );
+    rdpg_core::fpmode::set_flush_denormal(false);
+}

@@ -195,30 +195,4 @@ impl Mlp {
     }
 }
 
-/// Makes the CPU flush denormal (subnormal) floats to zero on the calling thread (the x86
-/// MXCSR flags FTZ and DAZ; a no-op elsewhere). Returns whether the flags were set.
-///
-/// Training drives some values (LSTM gate derivatives, Adam moments of tiny gradients) into the
-/// subnormal range, where x86 arithmetic is up to 100x slower: without this, an update on the
-/// memory task slows down several-fold as training goes on. This is what
-/// `torch.set_flush_denormal(True)` does; like it, it affects only the calling thread.
-pub fn set_flush_denormal(on: bool) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        const FTZ_DAZ: u32 = (1 << 15) | (1 << 6);
-        let mut csr: u32 = 0;
-        // SAFETY: stmxcsr/ldmxcsr read and write the SSE control register of this thread;
-        // FTZ and DAZ only change how subnormal results and inputs are treated.
-        unsafe {
-            std::arch::asm!("stmxcsr [{}]", in(reg) &mut csr, options(nostack));
-            csr = if on { csr | FTZ_DAZ } else { csr & !FTZ_DAZ };
-            std::arch::asm!("ldmxcsr [{}]", in(reg) &csr, options(nostack, readonly));
-        }
-        true
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        let _ = on;
-        false
-    }
-}
+pub use rdpg_core::fpmode::set_flush_denormal;

@@ -65,6 +65,8 @@ impl PpoTrainer {
     pub fn new(train: TrainConfig, cfg: PpoConfig) -> Result<Self> {
         train.validate()?;
         cfg.validate()?;
+        // Before any tensor work, so that libtorch's worker threads inherit the mode.
+        crate::common::tensor::set_flush_denormal(true);
         let collector = Collector::new(&train)?;
         let agent = PpoAgent::new(cfg, collector.obs_dim(), collector.act_dim(), train.seed)?;
         let st = LoopState {

@@ -168,10 +168,12 @@ pub struct RdpgConfig {
     /// Number of intra-op CPU threads libtorch uses (`torch.set_num_threads`); `None` leaves
     /// libtorch's default. This setting is process-wide.
     pub num_threads: Option<usize>,
-    /// Flush subnormal floats to zero on the thread that updates and acts (see
-    /// [`crate::set_flush_denormal`]). Without it, CPU updates slow down 2-3x as training
-    /// drives values into the subnormal range; the numerical effect is below `f32` precision of
-    /// any value that matters.
+    /// Flush subnormal floats to zero in every thread that runs tensor kernels: the trainer's
+    /// thread (set when the trainer is built, before any tensor work) and libtorch's worker
+    /// threads (which inherit it when libtorch creates them). The environments' physics runs
+    /// in IEEE mode whatever the thread (`rdpg_core::fpmode`). Without it, CPU updates slow
+    /// down 2-3x as training drives values into the subnormal range; the numerical effect is
+    /// below `f32` precision of any value that matters.
     pub flush_denormal: bool,
 }
 

@@ -91,6 +91,11 @@ impl OffPolicyTrainer {
     pub fn new(cfg: TrainConfig, off: OffPolicyConfig, agent_cfg: RdpgConfig) -> Result<Self> {
         cfg.validate()?;
         off.validate()?;
+        if agent_cfg.flush_denormal {
+            // Before any tensor work: libtorch's worker threads, created at its first parallel
+            // region, inherit this thread's mode (the environments step in IEEE mode anyway).
+            crate::common::tensor::set_flush_denormal(true);
+        }
         let collector = Collector::new(&cfg)?;
         let (obs_dim, act_dim) = (collector.obs_dim(), collector.act_dim());
         let agent = RdpgAgent::new(agent_cfg, obs_dim, act_dim, cfg.seed)?;

@@ -492,55 +492,61 @@ impl Env for BipedalWalker {
     }
 
     fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        if let Some(s) = seed {
-            self.rng = Some(NpRng::from_seed(s));
-        }
-        self.destroy()?;
-        self.world.set_contact_recording(true);
-        self.game_over = false;
-        self.prev_shaping = None;
-        self.prev_shaping_paper = None;
-        self.scroll = 0.0;
-        self.ground_contact = [false; 4];
-        self.elapsed = 0;
-        let hardcore = self.config.hardcore;
-        let rng = self.rng.get_or_insert_with(NpRng::from_entropy);
-        self.terrain = Terrain::generate(rng, hardcore);
-        self.terrain_bodies = self
-            .terrain
-            .build(&mut self.world, TAG_TERRAIN)
-            .map_err(phys)?;
-        terrain::draw_clouds(rng, &mut self.terrain);
-        self.create_body_and_legs()?;
-        self.episode_over = false;
-        // Gymnasium returns the observation of one real step with a zero action; that step is
-        // not counted by the time limit.
-        let (obs, ..) = self.advance([0.0; 4])?;
-        self.elapsed = 0;
-        Ok((obs.to_vec(), EnvInfo::default()))
+        // Physics in IEEE mode whatever the thread (learners flush subnormals).
+        rdpg_core::fpmode::with_ieee_denormals(|| {
+            if let Some(s) = seed {
+                self.rng = Some(NpRng::from_seed(s));
+            }
+            self.destroy()?;
+            self.world.set_contact_recording(true);
+            self.game_over = false;
+            self.prev_shaping = None;
+            self.prev_shaping_paper = None;
+            self.scroll = 0.0;
+            self.ground_contact = [false; 4];
+            self.elapsed = 0;
+            let hardcore = self.config.hardcore;
+            let rng = self.rng.get_or_insert_with(NpRng::from_entropy);
+            self.terrain = Terrain::generate(rng, hardcore);
+            self.terrain_bodies = self
+                .terrain
+                .build(&mut self.world, TAG_TERRAIN)
+                .map_err(phys)?;
+            terrain::draw_clouds(rng, &mut self.terrain);
+            self.create_body_and_legs()?;
+            self.episode_over = false;
+            // Gymnasium returns the observation of one real step with a zero action; that step is
+            // not counted by the time limit.
+            let (obs, ..) = self.advance([0.0; 4])?;
+            self.elapsed = 0;
+            Ok((obs.to_vec(), EnvInfo::default()))
+        })
     }
 
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
-        validate_action(&self.act_space, action)?;
-        if self.episode_over {
-            return Err(EnvError::NeedsReset("the episode is over"));
-        }
-        let (obs, stock, paper, terminated, success) =
-            self.advance([action[0], action[1], action[2], action[3]])?;
-        self.episode_over = terminated;
-        let (reward, stock_reward) = match self.config.reward {
-            WalkerReward::Stock => (stock, None),
-            WalkerReward::Paper => (paper, Some(stock)),
-        };
-        Ok(Step {
-            obs: obs.to_vec(),
-            reward,
-            terminated,
-            truncated: false,
-            info: EnvInfo {
-                success,
-                stock_reward,
-            },
+        // Physics in IEEE mode whatever the thread (learners flush subnormals).
+        rdpg_core::fpmode::with_ieee_denormals(|| {
+            validate_action(&self.act_space, action)?;
+            if self.episode_over {
+                return Err(EnvError::NeedsReset("the episode is over"));
+            }
+            let (obs, stock, paper, terminated, success) =
+                self.advance([action[0], action[1], action[2], action[3]])?;
+            self.episode_over = terminated;
+            let (reward, stock_reward) = match self.config.reward {
+                WalkerReward::Stock => (stock, None),
+                WalkerReward::Paper => (paper, Some(stock)),
+            };
+            Ok(Step {
+                obs: obs.to_vec(),
+                reward,
+                terminated,
+                truncated: false,
+                info: EnvInfo {
+                    success,
+                    stock_reward,
+                },
+            })
         })
     }
 
