@@ -99,37 +99,11 @@ impl RdpgAgent {
         clock.lap(|t| &mut t.prepare);
 
         // ---- 1. Scan: h_{-1} for every network, no gradient (paper Eq. (scan)). -------------
-        let sc = tch::no_grad(|| self.scan_all(&p));
+        let sc = self.scan_all(&p);
         clock.lap(|t| &mut t.scan);
 
-        // ---- 2a. Along the window without gradient: the behaviour actor's states (for the
-        // per-step actor gradient) and the bootstrap action mu'(o_tail) (+ smoothing noise);
-        // with target networks also Q'(o_tail, mu'(o_tail)). -----------------------------------
-        let (actor_states, mut a_tail) = tch::no_grad(|| self.actor_window(&p, &sc));
-        if let Some(noise) = self.cfg.target_noise {
-            a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
-        }
-        let target_q_tail = tch::no_grad(|| self.target_tail_q(&p, &sc, &a_tail));
-        clock.lap(|t| &mut t.window_nograd);
-
-        // ---- 2b. Critic: tail-step bootstrap of the interpolated TD (Eq. (unsynced...)), or
-        // the classic RDPG's per-step TD(0) (Heess et al. 2015). ------------------------------
-        let (q_sa, y) = match self.cfg.critic_target {
-            CriticTarget::TailBootstrap => {
-                let (q_sa, q_tail) = self.critic_forward(&p, &sc, &a_tail, target_q_tail);
-                (q_sa, tch::no_grad(|| td_targets(&p, &q_tail))) // [N, l]
-            }
-            CriticTarget::PerStepTd0 => {
-                let y = tch::no_grad(|| self.per_step_targets(&p, &sc)); // [N, l]
-                let q_sa = self
-                    .critics
-                    .iter()
-                    .zip(&sc.critics)
-                    .map(|(c, h)| critic_window(c, &p, h, None))
-                    .collect();
-                (q_sa, y)
-            }
-        };
+        // ---- 2. Critic: q along the window (with gradient) and its targets (without). -------
+        let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
         let critic_loss = q_sa
             .iter()
             .map(|q| critic_loss_from(&p, q, &y))
@@ -213,6 +187,46 @@ impl RdpgAgent {
             pt.updates += 1;
         }
         stats
+    }
+
+    /// Step 2 of the update: `Q(o_i, a_i | h_{i-1})` of every critic along the window, with
+    /// gradient (`[N, l]` each), and their targets `y` (`[N, l]`) and the actor's states along
+    /// the window (per-step actor gradient), both without gradient:
+    ///
+    /// 2a. the behaviour actor along the window from its scanned state gives its states and the
+    ///     bootstrap action `mu'(o_tail)` (+ TD3 smoothing noise); with target networks also
+    ///     `Q'(o_tail, mu'(o_tail))`;
+    /// 2b. the tail-step bootstrap of the interpolated TD (Eq. (unsyncedinterpolatedTD)), or
+    ///     the classic RDPG's per-step TD(0) (Heess et al. 2015).
+    pub(super) fn critic_objective(
+        &mut self,
+        p: &Prepared,
+        sc: &Scanned,
+        clock: &mut Clock,
+    ) -> (Vec<Tensor>, Tensor, Option<(Tensor, Tensor)>) {
+        let (actor_states, mut a_tail) = tch::no_grad(|| self.actor_window(p, sc));
+        if let Some(noise) = self.cfg.target_noise {
+            a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
+        }
+        let target_q_tail = tch::no_grad(|| self.target_tail_q(p, sc, &a_tail));
+        clock.lap(|t| &mut t.window_nograd);
+        let (q_sa, y) = match self.cfg.critic_target {
+            CriticTarget::TailBootstrap => {
+                let (q_sa, q_tail) = self.critic_forward(p, sc, &a_tail, target_q_tail);
+                (q_sa, tch::no_grad(|| td_targets(p, &q_tail))) // [N, l]
+            }
+            CriticTarget::PerStepTd0 => {
+                let y = tch::no_grad(|| self.per_step_targets(p, sc)); // [N, l]
+                let q_sa = self
+                    .critics
+                    .iter()
+                    .zip(&sc.critics)
+                    .map(|(c, h)| critic_window(c, p, h, None))
+                    .collect();
+                (q_sa, y)
+            }
+        };
+        (q_sa, y, actor_states)
     }
 
     /// Step 2a (call without gradient): runs the behaviour actor along the window (`l + 1`
@@ -437,8 +451,12 @@ impl RdpgAgent {
         }
     }
 
-    /// Step 1 for every network (call without gradient).
+    /// Step 1 for every network, without gradient.
     pub(super) fn scan_all(&self, p: &Prepared) -> Scanned {
+        tch::no_grad(|| self.scan_all_inner(p))
+    }
+
+    fn scan_all_inner(&self, p: &Prepared) -> Scanned {
         let actor_init = match &p.stored {
             Some(st) => st.shallow_clone(),
             None => self.actor.core.zero_state(p.n, self.kind, self.device),
@@ -645,14 +663,14 @@ pub(super) fn actor_loss(
 }
 
 /// Per-phase stopwatch (no-op when profiling is off).
-struct Clock {
+pub(super) struct Clock {
     on: bool,
     last: Instant,
     acc: PhaseTimes,
 }
 
 impl Clock {
-    fn new(on: bool) -> Self {
+    pub(super) fn new(on: bool) -> Self {
         Self {
             on,
             last: Instant::now(),
