@@ -32,7 +32,7 @@
 //! `critic_target = "per_step_td0"` replaces step 2's targets with the classic RDPG's (Heess
 //! et al. 2015, the paper's Table I baseline): per-step TD(0),
 //! `y_i = r_i + gamma Q'(o_{i+1}, mu'(o_{i+1}) | h'_i) (1 - term_i)`, each step bootstrapping
-//! from the next one along the window ([`RdpgAgent::per_step_targets`]).
+//! from the next one along the window (`RdpgAgent::per_step_targets`).
 //!
 //! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
 //! critic steps every time.
