@@ -9,11 +9,11 @@
 //! return is 0; remembering the cue earns 1. Episodes are `delay + 2` steps long.
 //!
 //! `DelayedCue-v0` is the same task with the episode going on after the query: cue at step 0,
-//! query at step 8, blank steps up to step 20, then `terminated`. It tests the paper's central
+//! query at step 5, blank steps up to 12 steps, then `terminated`. It tests the paper's central
 //! claim, scanning: a learner whose windows are shorter than the cue-query distance
-//! (`l < 8`) and whose episodes are longer than its windows (`s + l < 20`) sees the query in
-//! windows that start after the cue, and only a scan of `s >= 8` steps before the window
-//! brings the cue back into the recurrent state.
+//! (`l < 5`) and whose episodes are longer than its windows and scans (`s + l < 12`) sees the
+//! query only in windows that start after the cue, and only a scan of `s >= 5` steps before
+//! the window brings the cue back into the recurrent state.
 
 use crate::Renderable;
 use rdpg_core::env::validate_action;
@@ -25,10 +25,10 @@ use rdpg_render::{Scene, Shape};
 pub const DEFAULT_DELAY: usize = 4;
 
 /// Blank steps between the cue and the query in `DelayedCue-v0`.
-pub const DELAYED_DELAY: usize = 7;
+pub const DELAYED_DELAY: usize = 4;
 
 /// Episode length of `DelayedCue-v0`.
-pub const DELAYED_LEN: usize = 20;
+pub const DELAYED_LEN: usize = 12;
 
 /// The cue-recall task.
 pub struct CueMemory {
@@ -54,7 +54,7 @@ impl CueMemory {
         Self::build("CueMemory-v0", delay, delay + 2)
     }
 
-    /// `DelayedCue-v0`: cue at step 0, query at step 8, episodes of 20 steps.
+    /// `DelayedCue-v0`: cue at step 0, query at step 5, episodes of 12 steps.
     pub fn delayed() -> Self {
         Self::build("DelayedCue-v0", DELAYED_DELAY, DELAYED_LEN)
     }
@@ -210,7 +210,7 @@ mod tests {
     }
 
     #[test]
-    fn delayed_cue_queries_at_step_8_and_runs_to_20() {
+    fn delayed_cue_queries_at_step_5_and_runs_to_12() {
         let mut env = CueMemory::delayed();
         assert_eq!(env.id(), "DelayedCue-v0");
         for seed in 0..50 {
@@ -225,7 +225,7 @@ mod tests {
             flags.push(s.obs[1]);
             assert_eq!(s.terminated, flags.len() == DELAYED_LEN);
         }
-        // The observation after step 7 is the query (flag 1), acted on at step 8.
+        // The observation after step 4 is the query (flag 1), acted on at step 5.
         assert_eq!(flags.iter().position(|&f| f == 1.0), Some(DELAYED_DELAY));
         assert_eq!(flags.iter().filter(|&&f| f == 1.0).count(), 1);
     }

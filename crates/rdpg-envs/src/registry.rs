@@ -37,7 +37,7 @@ pub struct EnvOptions {
 }
 
 /// Builds a registered environment with its time limit (1600 steps for BipedalWalker-v3, 2000
-/// for the hardcore version, 200 for the pendulums, 6 for `CueMemory-v0`, 20 for
+/// for the hardcore version, 200 for the pendulums, 6 for `CueMemory-v0`, 12 for
 /// `DelayedCue-v0`).
 pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
     make_with(id, &EnvOptions::default())
