@@ -542,13 +542,12 @@ fn actor_loss_gradient_matches_finite_differences() {
 
 #[test]
 fn bptt_and_per_step_gradients_differ_but_agree_on_the_first_step() {
-    // With l = 1 there is no time to back-propagate through: both must agree exactly.
-    let mut grads = Vec::new();
-    for bptt in [false, true] {
+    // The actor's gradient with and without BPTT, for windows of l steps.
+    let grads = |bptt: bool, l: usize| -> Vec<f64> {
         let cfg = RdpgConfig {
             actor_bptt: bptt,
-            opt_len: 1,
-            update_len: 1,
+            opt_len: l,
+            update_len: l,
             ..tiny()
         };
         let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 23, Kind::Double).unwrap();
@@ -563,49 +562,18 @@ fn bptt_and_per_step_gradients_differ_but_agree_on_the_first_step() {
         };
         agent.actor_opt.zero_grad();
         actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs).backward();
-        grads.push(
-            sorted_vars(&agent.actor_vs)
-                .iter()
-                .flat_map(|(_, v)| to_vec64(&v.grad()))
-                .collect::<Vec<_>>(),
-        );
-    }
-    assert_close(&grads[0], &grads[1], 1e-12, "l = 1");
-
-    // With l = 3 the BPTT gradient also flows through the actor's state into earlier steps,
-    // so the two differ.
-    let mut grads = Vec::new();
-    for bptt in [false, true] {
-        let cfg = RdpgConfig {
-            actor_bptt: bptt,
-            opt_len: 3,
-            update_len: 3,
-            ..tiny()
-        };
-        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 23, Kind::Double).unwrap();
-        let b = batch(&cfg, 4, 0.0, 10);
-        let p = agent.prepare(&b);
-        let sc = tch::no_grad(|| agent.scan_all(&p));
-        let (states, _) = tch::no_grad(|| agent.actor_window(&p, &sc));
-        let cs = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
-        let input = match &states {
-            Some((h, c)) => ActorInput::Detached { h, c },
-            None => ActorInput::Bptt { h0: &sc.actor },
-        };
-        agent.actor_opt.zero_grad();
-        actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs).backward();
-        let g: Vec<f64> = sorted_vars(&agent.actor_vs)
+        sorted_vars(&agent.actor_vs)
             .iter()
             .flat_map(|(_, v)| to_vec64(&v.grad()))
-            .collect();
-        grads.push(g);
-    }
-    let diff: f64 = grads[0]
-        .iter()
-        .zip(&grads[1])
-        .map(|(a, b)| (a - b).abs())
-        .sum();
-    let size: f64 = grads[0].iter().map(|a| a.abs()).sum();
+            .collect()
+    };
+    // With l = 1 there is no time to back-propagate through: both must agree exactly.
+    assert_close(&grads(false, 1), &grads(true, 1), 1e-12, "l = 1");
+    // With l = 3 the BPTT gradient also flows through the actor's state into earlier steps,
+    // so the two differ.
+    let (per_step, bptt) = (grads(false, 3), grads(true, 3));
+    let diff: f64 = per_step.iter().zip(&bptt).map(|(a, b)| (a - b).abs()).sum();
+    let size: f64 = per_step.iter().map(|a| a.abs()).sum();
     assert!(
         diff > 1e-6 * size,
         "l = 3: BPTT and per-step gradients agree ({diff} vs {size})"
