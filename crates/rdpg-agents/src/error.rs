@@ -16,6 +16,9 @@ pub enum AgentError {
     /// A batch, observation or state does not have the shape the agent expects.
     #[error("shape mismatch: {0}")]
     Shape(String),
+    /// An observation (or other input) is not finite.
+    #[error("bad input: {0}")]
+    Input(String),
     /// The requested device cannot be used.
     #[error("device: {0}")]
     Device(String),

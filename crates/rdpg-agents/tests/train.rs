@@ -425,8 +425,8 @@ fn stored_states_come_from_the_trained_actor_under_parameter_noise() {
         assert_eq!(stored, &clean.to_vec()[..], "state before step {k}");
         differs |= stored != &exploring.to_vec()[..];
         let o = &ep.obs[k * 2..(k + 1) * 2];
-        a.act(o, &mut clean);
-        a.act_exploring(o, &mut exploring);
+        a.act(o, &mut clean).unwrap();
+        a.act_exploring(o, &mut exploring).unwrap();
     }
     assert!(differs, "the exploring copy was never perturbed");
 }

@@ -87,7 +87,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         let summary = render_episode(
             &mut env,
             args.seed,
-            |obs| to_env_action(&policy.act(obs), &lo, &hi),
+            |obs| Ok(to_env_action(&policy.act(obs)?, &lo, &hi)),
             &target,
         )?;
         (exp.train.env, summary)
@@ -107,11 +107,13 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         let summary = render_episode(
             &mut env,
             args.seed,
-            |_obs| match policy {
-                Policy::Random => (0..dim)
-                    .map(|i| rng.uniform(lo[i] as f64, hi[i] as f64) as f32)
-                    .collect(),
-                Policy::Zeros => vec![0.0; dim],
+            |_obs| {
+                Ok(match policy {
+                    Policy::Random => (0..dim)
+                        .map(|i| rng.uniform(lo[i] as f64, hi[i] as f64) as f32)
+                        .collect(),
+                    Policy::Zeros => vec![0.0; dim],
+                })
             },
             &target,
         )?;
@@ -165,7 +167,7 @@ pub fn render_episode<E, P>(
 ) -> Result<EpisodeSummary>
 where
     E: rdpg_core::Env + Renderable,
-    P: FnMut(&[f32]) -> Vec<f32>,
+    P: FnMut(&[f32]) -> Result<Vec<f32>>,
 {
     let (mut obs, _) = env.reset(Some(seed))?;
     let first = env.scene();
@@ -199,7 +201,7 @@ where
         if target.max_steps.is_some_and(|m| steps >= m) {
             break;
         }
-        let action = policy(&obs);
+        let action = policy(&obs)?;
         let s = env.step(&action)?;
         steps += 1;
         ret += s.reward;

@@ -11,8 +11,9 @@ use crate::error::Result;
 pub trait DeterministicPolicy {
     /// Starts a new episode (e.g. zeroes the recurrent state).
     fn begin_episode(&mut self);
-    /// The action in `[-1, 1]^act_dim` for one observation.
-    fn act(&mut self, obs: &[f32]) -> Vec<f32>;
+    /// The action in `[-1, 1]^act_dim` for one observation; an observation of the wrong size
+    /// or with a non-finite value is an error.
+    fn act(&mut self, obs: &[f32]) -> Result<Vec<f32>>;
 }
 
 /// Maps an action in the agent's `[-1, 1]` space to the env's bounds (clipping first).
@@ -45,7 +46,7 @@ pub fn evaluate_policy(
         policy.begin_episode();
         let mut ret = 0.0;
         loop {
-            let a = policy.act(&obs);
+            let a = policy.act(&obs)?;
             let s = env.step(&to_env_action(&a, &space.low, &space.high))?;
             ret += s.reward;
             if s.done() {

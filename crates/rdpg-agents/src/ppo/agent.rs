@@ -531,8 +531,21 @@ impl DeterministicPolicy for PpoAgent {
     /// Feed-forward: nothing to reset.
     fn begin_episode(&mut self) {}
     /// The policy mean clamped to `[-1, 1]`.
-    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
-        self.act_deterministic(obs)
+    fn act(&mut self, obs: &[f32]) -> Result<Vec<f32>> {
+        if obs.len() != self.obs_dim {
+            return Err(AgentError::Shape(format!(
+                "act: {} observation values, expected obs_dim {}",
+                obs.len(),
+                self.obs_dim
+            )));
+        }
+        if let Some(k) = obs.iter().position(|x| !x.is_finite()) {
+            return Err(AgentError::Input(format!(
+                "observation component {k} is {}",
+                obs[k]
+            )));
+        }
+        Ok(self.act_deterministic(obs))
     }
 }
 

@@ -352,34 +352,37 @@ impl RdpgAgent {
 
     /// Deterministic actions `mu(o_t | h_{t-1})` of the trained actor for a batch of
     /// environments: `obs` is `[n_envs, obs_dim]` row-major, the result `[n_envs, act_dim]` in
-    /// `[-1, 1]`; `state` advances by one step. Evaluation and updates use this actor.
-    ///
-    /// # Panics
-    /// If `obs.len() != state.n_envs() * obs_dim`.
-    pub fn act(&self, obs: &[f32], state: &mut ActorState) -> Vec<f32> {
+    /// `[-1, 1]`; `state` advances by one step. Evaluation and updates use this actor. A wrong
+    /// number of values or a non-finite one is an error (the state is left unchanged).
+    pub fn act(&self, obs: &[f32], state: &mut ActorState) -> Result<Vec<f32>> {
         self.act_with(&self.actor, obs, state)
     }
 
     /// Like [`RdpgAgent::act`], with the exploring copy of the actor (its parameters set by
     /// [`RdpgAgent::set_exploring_params`], parameter-space noise) when there is one, else
     /// with the trained actor. Action noise is the caller's business.
-    ///
-    /// # Panics
-    /// If `obs.len() != state.n_envs() * obs_dim`.
-    pub fn act_exploring(&self, obs: &[f32], state: &mut ActorState) -> Vec<f32> {
+    pub fn act_exploring(&self, obs: &[f32], state: &mut ActorState) -> Result<Vec<f32>> {
         let actor = self.exploring.as_ref().map_or(&self.actor, |(_, a)| a);
         self.act_with(actor, obs, state)
     }
 
-    fn act_with(&self, actor: &Actor, obs: &[f32], state: &mut ActorState) -> Vec<f32> {
+    fn act_with(&self, actor: &Actor, obs: &[f32], state: &mut ActorState) -> Result<Vec<f32>> {
         let n = state.n_envs;
-        assert_eq!(
-            obs.len(),
-            n * self.obs_dim,
-            "act: obs has {} values, expected n_envs {n} x obs_dim {}",
-            obs.len(),
-            self.obs_dim
-        );
+        if obs.len() != n * self.obs_dim {
+            return Err(AgentError::Shape(format!(
+                "act: {} observation values, expected {n} environment(s) x obs_dim {}",
+                obs.len(),
+                self.obs_dim
+            )));
+        }
+        if let Some(k) = obs.iter().position(|x| !x.is_finite()) {
+            return Err(AgentError::Input(format!(
+                "observation component {} of environment {} is {}",
+                k % self.obs_dim,
+                k / self.obs_dim,
+                obs[k]
+            )));
+        }
         let a = tch::no_grad(|| {
             let o = Tensor::from_slice(obs)
                 .view([n as i64, self.obs_dim as i64])
@@ -389,7 +392,7 @@ impl RdpgAgent {
             state.state = s;
             a
         });
-        tensor_to_vec(&a)
+        Ok(tensor_to_vec(&a))
     }
 
     /// Number of actor parameters (the length of [`RdpgAgent::actor_params`]).

@@ -184,7 +184,7 @@ pub fn record(
             injected: true,
         };
         loop {
-            let mut a = policy.act(&obs);
+            let mut a = policy.act(&obs)?;
             if noise_sigma > 0.0 {
                 for x in &mut a {
                     *x = (*x + (noise_sigma * rng.standard_normal()) as f32).clamp(-1.0, 1.0);

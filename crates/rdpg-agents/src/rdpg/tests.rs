@@ -704,7 +704,7 @@ fn save_load_gives_identical_outputs_and_next_update() {
         let obs: Vec<f32> = (0..2 * OBS).map(|i| (i as f32 * 0.37).sin()).collect();
         let (mut sa, mut sb) = (a.initial_state(2), b.initial_state(2));
         for _ in 0..3 {
-            assert_eq!(a.act(&obs, &mut sa), b.act(&obs, &mut sb));
+            assert_eq!(a.act(&obs, &mut sa).unwrap(), b.act(&obs, &mut sb).unwrap());
         }
         // The next update is bit-identical (Adam moments, step count and noise generator
         // restored).
@@ -737,7 +737,7 @@ fn acting_matches_the_sequence_forward_and_resets() {
     let mut st = agent.initial_state(n_envs);
     assert_eq!(st.state_dim(), 8);
     assert_eq!(agent.state_dim(), 8);
-    let acts: Vec<Vec<f32>> = obs.iter().map(|o| agent.act(o, &mut st)).collect();
+    let acts: Vec<Vec<f32>> = obs.iter().map(|o| agent.act(o, &mut st).unwrap()).collect();
     // The same observations as one [n_envs, T, D] sequence.
     let mut seq = vec![0.0f32; n_envs * steps * OBS];
     for (t, o) in obs.iter().enumerate() {
@@ -867,11 +867,13 @@ fn exploring_params_swap_in_a_perturbed_actor() {
     let obs: Vec<f32> = (0..2 * OBS).map(|i| (i as f32 * 0.21).sin()).collect();
     let mut params = agent.actor_params();
     assert_eq!(params.len(), agent.actor_param_count());
-    let reference = agent.act(&obs, &mut agent.initial_state(2));
+    let reference = agent.act(&obs, &mut agent.initial_state(2)).unwrap();
     // The same parameters act identically.
     agent.set_exploring_params(Some(&params)).unwrap();
     assert_eq!(
-        agent.act_exploring(&obs, &mut agent.initial_state(2)),
+        agent
+            .act_exploring(&obs, &mut agent.initial_state(2))
+            .unwrap(),
         reference
     );
     // Perturbed parameters act differently; the trained actor is untouched.
@@ -880,13 +882,20 @@ fn exploring_params_swap_in_a_perturbed_actor() {
     }
     agent.set_exploring_params(Some(&params)).unwrap();
     assert_ne!(
-        agent.act_exploring(&obs, &mut agent.initial_state(2)),
+        agent
+            .act_exploring(&obs, &mut agent.initial_state(2))
+            .unwrap(),
         reference
     );
-    assert_eq!(agent.act(&obs, &mut agent.initial_state(2)), reference);
+    assert_eq!(
+        agent.act(&obs, &mut agent.initial_state(2)).unwrap(),
+        reference
+    );
     agent.set_exploring_params(None).unwrap();
     assert_eq!(
-        agent.act_exploring(&obs, &mut agent.initial_state(2)),
+        agent
+            .act_exploring(&obs, &mut agent.initial_state(2))
+            .unwrap(),
         reference
     );
     assert!(agent.set_exploring_params(Some(&params[1..])).is_err());
@@ -1362,4 +1371,20 @@ fn actor_sees_the_critic_in_algorithm_1_order() {
         losses.push(reported);
     }
     assert_ne!(losses[0], losses[1], "the two orders must differ");
+}
+
+/// Bad observations are errors with a message, never a panic, and leave the state alone.
+#[test]
+fn acting_on_bad_observations_is_an_error() {
+    let agent = RdpgAgent::new(tiny(), OBS, ACT, 2).unwrap();
+    let mut st = agent.initial_state(2);
+    let before = st.to_vec();
+    let short = vec![0.1f32; 2 * OBS - 1];
+    let e = agent.act(&short, &mut st).unwrap_err().to_string();
+    assert!(e.contains("obs_dim 13"), "{e}");
+    let mut nan = vec![0.1f32; 2 * OBS];
+    nan[OBS + 4] = f32::NAN;
+    let e = agent.act_exploring(&nan, &mut st).unwrap_err().to_string();
+    assert!(e.contains("component 4 of environment 1"), "{e}");
+    assert_eq!(st.to_vec(), before);
 }

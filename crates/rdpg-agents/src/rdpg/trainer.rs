@@ -376,9 +376,9 @@ impl Trainer for OffPolicyTrainer {
                 self.perturb_actor_if_due()?;
             }
             let flat: Vec<f32> = self.collector.obs().concat();
-            let mu = self.agent.act_exploring(&flat, &mut self.act_state);
+            let mu = self.agent.act_exploring(&flat, &mut self.act_state)?;
             if let Some(clean) = self.clean_state.as_mut() {
-                let _ = self.agent.act(&flat, clean);
+                self.agent.act(&flat, clean)?;
             }
             let actions: Vec<Vec<f32>> = (0..n)
                 .map(|i| {
@@ -513,7 +513,7 @@ impl<A: Borrow<RdpgAgent>> DeterministicPolicy for RdpgPolicy<A> {
     fn begin_episode(&mut self) {
         self.state = self.agent.borrow().initial_state(1);
     }
-    fn act(&mut self, obs: &[f32]) -> Vec<f32> {
+    fn act(&mut self, obs: &[f32]) -> Result<Vec<f32>> {
         self.agent.borrow().act(obs, &mut self.state)
     }
 }
@@ -533,8 +533,8 @@ pub fn adapt_param_noise(
     let mut params = agent.actor_params();
     noise.perturb(&mut params, rng);
     agent.set_exploring_params(Some(&params))?;
-    let perturbed = agent.act_exploring(obs, &mut agent.initial_state(n));
-    let clean = agent.act(obs, &mut agent.initial_state(n));
+    let perturbed = agent.act_exploring(obs, &mut agent.initial_state(n))?;
+    let clean = agent.act(obs, &mut agent.initial_state(n))?;
     let distance = action_distance(&perturbed, &clean);
     noise.adapt(distance);
     Ok(distance)
