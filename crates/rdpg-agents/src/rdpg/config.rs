@@ -100,7 +100,10 @@ pub struct RdpgConfig {
     pub actor_hidden: usize,
     /// Critic LSTM (or FC) width. Paper: 320.
     pub critic_hidden: usize,
-    /// Width of the critic's action branch (FC + ReLU on the action). Paper: 64.
+    /// Width of the critic's action branch (FC + ReLU on the action, concatenated with the
+    /// trunk's embedding). Paper: 64. `0`: no branch, the raw action is concatenated with the
+    /// observation at the trunk's input, as in TD3's and Stable-Baselines3's critics (needs an
+    /// MLP trunk).
     pub critic_action_fc: usize,
     /// Discount factor gamma.
     pub gamma: f64,
@@ -287,7 +290,13 @@ impl RdpgConfig {
         }
         positive("actor_hidden", self.actor_hidden)?;
         positive("critic_hidden", self.critic_hidden)?;
-        positive("critic_action_fc", self.critic_action_fc)?;
+        if self.critic_action_fc == 0 && !matches!(self.trunk, Trunk::Mlp { .. }) {
+            return Err(bad(
+                "critic_action_fc",
+                "0 (the action at the critic's input) needs an MLP trunk; the lidar trunk takes \
+                 observations only, so give it an action branch (e.g. 64)",
+            ));
+        }
         if !(self.gamma.is_finite() && (0.0..=1.0).contains(&self.gamma)) {
             return Err(bad(
                 "gamma",

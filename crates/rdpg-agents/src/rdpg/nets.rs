@@ -6,7 +6,9 @@
 //!   ReLU; concatenated (256). Tasks without lidar use an MLP trunk.
 //! * **Actor**: trunk -> LSTM 256 -> FC + tanh -> action.
 //! * **Critic**: trunk, and an action branch FC act_dim -> 64 + ReLU, concatenated -> LSTM 320
-//!   -> linear Q.
+//!   -> linear Q. With `critic_action_fc = 0` (MLP trunks only) there is no action branch: the
+//!   raw action is concatenated with the observation at the trunk's input, as in the critics of
+//!   TD3 (Fujimoto et al. 2018) and Stable-Baselines3.
 //! * **Feed-forward** variants (DDPG, paper Table I): the LSTM replaced by FC + ReLU of the same
 //!   width; their recurrent state is empty (zero-width) and passes through unchanged.
 //!
@@ -189,8 +191,9 @@ impl Actor {
 pub struct Critic {
     /// Observation embedding.
     pub trunk: TrunkNet,
-    /// Action branch, `A -> critic_action_fc`, ReLU.
-    pub act_fc: nn::Linear,
+    /// Action branch, `A -> critic_action_fc`, ReLU; `None` when the action enters at the
+    /// trunk's input (`critic_action_fc = 0`).
+    pub act_fc: Option<nn::Linear>,
     /// LSTM (or FC) core.
     pub core: Core,
     /// Output layer `H -> 1`.
@@ -200,9 +203,13 @@ pub struct Critic {
 impl Critic {
     /// Builds the critic's variables under `p`.
     pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64, act_dim: i64) -> Self {
-        let trunk = TrunkNet::new(&(p / "trunk"), cfg, obs_dim);
         let af = cfg.critic_action_fc as i64;
-        let act_fc = nn::linear(p / "act_fc", act_dim, af, Default::default());
+        let (trunk, act_fc) = if af == 0 {
+            (TrunkNet::new(&(p / "trunk"), cfg, obs_dim + act_dim), None)
+        } else {
+            let fc = nn::linear(p / "act_fc", act_dim, af, Default::default());
+            (TrunkNet::new(&(p / "trunk"), cfg, obs_dim), Some(fc))
+        };
         let e = cfg.embed_dim() as i64 + af;
         let h = cfg.critic_hidden as i64;
         let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
@@ -215,11 +222,17 @@ impl Critic {
         }
     }
 
-    /// Core input: `obs [B, T, D]`, `act [B, T, A]` -> `[B, T, E + 64]`.
+    /// Core input: `obs [B, T, D]`, `act [B, T, A]` -> `[B, T, E + 64]` (`[B, T, E]` without
+    /// an action branch).
     pub fn input_seq(&self, obs: &Tensor, act: &Tensor) -> Tensor {
-        let e = self.trunk.forward_seq(obs);
-        let a = self.act_fc.forward(act).relu();
-        Tensor::cat(&[e, a], 2)
+        match &self.act_fc {
+            Some(fc) => {
+                let e = self.trunk.forward_seq(obs);
+                let a = fc.forward(act).relu();
+                Tensor::cat(&[e, a], 2)
+            }
+            None => self.trunk.forward_seq(&Tensor::cat(&[obs, act], 2)), // [B, T, D + A] in
+        }
     }
 
     /// Core output -> Q: `[.., H]` -> `[..]`.
@@ -234,11 +247,17 @@ impl Critic {
         (self.head(&y), s)
     }
 
-    /// Core input for single steps: `obs [N, D]`, `act [N, A]` -> `[N, E + 64]`.
+    /// Core input for single steps: `obs [N, D]`, `act [N, A]` -> `[N, E + 64]` (`[N, E]`
+    /// without an action branch).
     pub fn input(&self, obs: &Tensor, act: &Tensor) -> Tensor {
-        let e = self.trunk.forward(obs);
-        let a = self.act_fc.forward(act).relu();
-        Tensor::cat(&[e, a], 1)
+        match &self.act_fc {
+            Some(fc) => {
+                let e = self.trunk.forward(obs);
+                let a = fc.forward(act).relu();
+                Tensor::cat(&[e, a], 1)
+            }
+            None => self.trunk.forward(&Tensor::cat(&[obs, act], 1)), // [N, D + A] in
+        }
     }
 
     /// One step: `obs [B, D]`, `act [B, A]` -> (`[B]`, next state).
@@ -274,6 +293,11 @@ mod tests {
                 trunk: Trunk::Mlp { hidden: vec![8, 6] },
                 ..cfg_small()
             },
+            RdpgConfig {
+                trunk: Trunk::Mlp { hidden: vec![8] },
+                critic_action_fc: 0,
+                ..cfg_small()
+            },
         ] {
             for recurrent in [true, false] {
                 let cfg = RdpgConfig {
@@ -297,5 +321,38 @@ mod tests {
                 assert!(q1.allclose(&q.select(1, 0), 1e-6, 1e-6, false));
             }
         }
+    }
+
+    /// `critic_action_fc = 0` is TD3's critic: the trunk's first layer reads `obs ++ act`, there
+    /// is no action branch, and Q depends on the action.
+    #[test]
+    fn critic_with_the_action_at_its_input() {
+        tch::manual_seed(1);
+        let cfg = RdpgConfig {
+            trunk: Trunk::Mlp { hidden: vec![8] },
+            critic_action_fc: 0,
+            recurrent: false,
+            ..cfg_small()
+        };
+        cfg.validate().unwrap();
+        let vs = nn::VarStore::new(Device::Cpu);
+        let critic = Critic::new(&(vs.root() / "c"), &cfg, 24, 4);
+        assert!(critic.act_fc.is_none());
+        let vars = vs.variables();
+        assert_eq!(vars["c.trunk.fc0.weight"].size(), [8, 28]);
+        assert!(!vars.keys().any(|k| k.contains("act_fc")));
+        let obs = Tensor::randn([5, 24], (Kind::Float, Device::Cpu));
+        let act = Tensor::randn([5, 4], (Kind::Float, Device::Cpu)).set_requires_grad(true);
+        let h0 = critic.core.zero_state(5, Kind::Float, Device::Cpu);
+        let (q, _) = critic.step(&obs, &act, &h0);
+        q.sum(Kind::Float).backward();
+        assert!(f64::try_from(act.grad().abs().sum(Kind::Float)).unwrap() > 0.0);
+
+        let lidar = RdpgConfig {
+            critic_action_fc: 0,
+            ..cfg_small()
+        };
+        let err = lidar.validate().unwrap_err().to_string();
+        assert!(err.contains("critic_action_fc"), "{err}");
     }
 }
