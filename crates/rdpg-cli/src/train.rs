@@ -2,13 +2,14 @@
 //! `rdpg_agents::{new_trainer, load_trainer, load_policy}`, into and out of run directories
 //! ([`crate::rundir`]).
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use rdpg_agents::common::evaluate_policy;
+use rdpg_agents::common::{evaluate_policy, evaluate_policy_traced, EpisodeTrace};
 use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats};
 use serde::Serialize;
 
@@ -265,6 +266,11 @@ pub struct EvalArgs {
     /// never saw).
     #[arg(long)]
     seed: Option<u64>,
+    /// Also write every episode's actions to FILE, one JSON line per episode:
+    /// `{"seed": N, "return": R, "actions": [[a0, a1, ...], ...]}`. Replaying them (as
+    /// float32) from `reset(seed=N)` in Gymnasium gives the same episode and return.
+    #[arg(long, value_name = "FILE")]
+    actions_out: Option<PathBuf>,
 }
 
 /// Arguments of `rdpg record`.
@@ -329,6 +335,52 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     Ok(())
 }
 
+/// The `--actions-out` file of `rdpg eval`: one JSON line per episode, flushed and synced at
+/// the end.
+struct ActionsWriter {
+    path: PathBuf,
+    out: std::io::BufWriter<std::fs::File>,
+}
+
+impl ActionsWriter {
+    fn create(path: &Path) -> Result<Self> {
+        let f = std::fs::File::create(path)
+            .with_context(|| format!("cannot create --actions-out file {}", path.display()))?;
+        Ok(Self {
+            path: path.to_owned(),
+            out: std::io::BufWriter::new(f),
+        })
+    }
+
+    fn episode(&mut self, e: &EpisodeTrace<'_>) -> rdpg_agents::Result<()> {
+        #[derive(Serialize)]
+        struct Episode<'a> {
+            seed: u64,
+            #[serde(rename = "return")]
+            ret: f64,
+            actions: &'a [Vec<f32>],
+        }
+        let line = Episode {
+            seed: e.seed,
+            ret: e.ret,
+            actions: e.actions,
+        };
+        serde_json::to_writer(&mut self.out, &line)?;
+        self.out.write_all(b"\n")?;
+        Ok(())
+    }
+
+    fn finish(self) -> Result<()> {
+        let f = self
+            .out
+            .into_inner()
+            .map_err(|e| e.into_error())
+            .and_then(|f| f.sync_all().map(|_| f));
+        f.with_context(|| format!("cannot write --actions-out file {}", self.path.display()))?;
+        Ok(())
+    }
+}
+
 /// `rdpg eval`.
 pub fn eval(a: &EvalArgs) -> Result<()> {
     if a.episodes == Some(0) {
@@ -337,7 +389,18 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     let (exp, mut policy) = RunDir::new(&a.run).policy(a.checkpoint)?;
     let seed = a.seed.unwrap_or(exp.train.test_seed);
     let episodes = a.episodes.unwrap_or(exp.train.test_episodes);
-    let r = evaluate_policy(policy.as_mut(), &exp.train, episodes, seed)?;
+    let r = match &a.actions_out {
+        None => evaluate_policy(policy.as_mut(), &exp.train, episodes, seed)?,
+        Some(path) => {
+            let mut out = ActionsWriter::create(path)?;
+            let r = evaluate_policy_traced(policy.as_mut(), &exp.train, episodes, seed, &mut |e| {
+                out.episode(e)
+            })
+            .with_context(|| format!("evaluating with --actions-out {}", path.display()))?;
+            out.finish()?;
+            r
+        }
+    };
     #[derive(Serialize)]
     struct Line<'a> {
         run: String,

@@ -409,6 +409,61 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     );
     assert_eq!(line["returns"].as_array().unwrap().len(), 3);
     assert!(line["metric"].as_str().unwrap().contains("stock reward"));
+
+    // `--actions-out`: one line per episode whose actions replay (`rdpg rollout`, the same
+    // contract as Gymnasium's) to the reported return.
+    let actions = tmp("actions.jsonl");
+    let out = ok(rdpg()
+        .args(["eval", "--episodes", "2", "--seed", "77", "--actions-out"])
+        .arg(&actions)
+        .arg("--run")
+        .arg(&one));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let episodes: Vec<Value> = std::fs::read_to_string(&actions)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(episodes.len(), 2);
+    let env = json_file(&one.join("summary.json"))["env"].clone();
+    for (k, ep) in episodes.iter().enumerate() {
+        assert_eq!(ep["seed"], 77 + k as u64);
+        assert_eq!(ep["return"], line["returns"][k]);
+        let csv: String = ep["actions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| {
+                let v: Vec<String> = a
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|x| (x.as_f64().unwrap() as f32).to_string())
+                    .collect();
+                v.join(",") + "\n"
+            })
+            .collect();
+        let file = tmp("replay.csv");
+        std::fs::write(&file, csv).unwrap();
+        let out = ok(rdpg()
+            .args(["rollout", "--env", env.as_str().unwrap(), "--seed"])
+            .arg(ep["seed"].to_string())
+            .arg("--actions")
+            .arg(&file));
+        let ret: f64 = String::from_utf8(out.stdout)
+            .unwrap()
+            .lines()
+            .filter_map(|l| serde_json::from_str::<Value>(l).unwrap()["reward"].as_f64())
+            .sum();
+        assert_eq!(ret, ep["return"].as_f64().unwrap(), "episode {k}");
+    }
+    let err = rdpg()
+        .args(["eval", "--actions-out", "/nonexistent/dir/a.jsonl", "--run"])
+        .arg(&one)
+        .output()
+        .unwrap();
+    assert!(!err.status.success());
+    assert!(String::from_utf8_lossy(&err.stderr).contains("/nonexistent/dir/a.jsonl"));
 }
 
 /// Unknown keys, bad values and bad overrides are rejected with the key's name.

@@ -15,6 +15,8 @@ pub mod trainer;
 
 pub use collector::{Collector, CollectorState, Transition};
 pub use config::{Algo, TrainConfig};
-pub use policy::{evaluate_policy, to_env_action, DeterministicPolicy};
+pub use policy::{
+    evaluate_policy, evaluate_policy_traced, to_env_action, DeterministicPolicy, EpisodeTrace,
+};
 pub use tensor::DeviceSpec;
 pub use trainer::{EpisodeRecord, EvalRecord, Quiet, TrainObserver, Trainer, UpdateStats};

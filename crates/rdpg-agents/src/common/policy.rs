@@ -24,6 +24,19 @@ pub fn to_env_action(a: &[f32], low: &[f32], high: &[f32]) -> Vec<f32> {
         .collect()
 }
 
+/// One finished evaluation episode, as handed to the observer of
+/// [`evaluate_policy_traced`].
+#[derive(Debug, Clone)]
+pub struct EpisodeTrace<'a> {
+    /// The episode's reset seed.
+    pub seed: u64,
+    /// Its stock return.
+    pub ret: f64,
+    /// The actions given to the environment (within its bounds), one per step: replaying
+    /// them from `reset(seed)` in Gymnasium, as `float32`, gives the same episode.
+    pub actions: &'a [Vec<f32>],
+}
+
 /// Deterministic evaluation of `policy` on `episodes` episodes of `cfg`'s environment (its
 /// observation mask included) with seeds `seed, seed + 1, ...`, scored on the stock reward,
 /// each episode from a fresh state. `step` of the record is 0.
@@ -33,6 +46,18 @@ pub fn evaluate_policy(
     episodes: usize,
     seed: u64,
 ) -> Result<EvalRecord> {
+    evaluate_policy_traced(policy, cfg, episodes, seed, &mut |_| Ok(()))
+}
+
+/// [`evaluate_policy`], handing each finished episode (seed, return, actions) to `on_episode`
+/// before the next one starts; an error from it stops the evaluation.
+pub fn evaluate_policy_traced(
+    policy: &mut dyn DeterministicPolicy,
+    cfg: &TrainConfig,
+    episodes: usize,
+    seed: u64,
+    on_episode: &mut dyn FnMut(&EpisodeTrace<'_>) -> Result<()>,
+) -> Result<EvalRecord> {
     let opts = EnvOptions {
         reward: WalkerReward::Stock,
         ..cfg.env_options()
@@ -41,13 +66,17 @@ pub fn evaluate_policy(
     let space = env.action_space().clone();
     let mut returns = Vec::with_capacity(episodes);
     let mut successes = 0;
+    let mut actions = Vec::new();
     for k in 0..episodes {
-        let (mut obs, _) = env.reset(Some(seed + k as u64))?;
+        let ep_seed = seed + k as u64;
+        let (mut obs, _) = env.reset(Some(ep_seed))?;
         policy.begin_episode();
+        actions.clear();
         let mut ret = 0.0;
         loop {
-            let a = policy.act(&obs)?;
-            let s = env.step(&to_env_action(&a, &space.low, &space.high))?;
+            let a = to_env_action(&policy.act(&obs)?, &space.low, &space.high);
+            let s = env.step(&a)?;
+            actions.push(a);
             ret += s.reward;
             if s.done() {
                 successes += s.info.success as usize;
@@ -55,6 +84,11 @@ pub fn evaluate_policy(
             }
             obs = s.obs;
         }
+        on_episode(&EpisodeTrace {
+            seed: ep_seed,
+            ret,
+            actions: &actions,
+        })?;
         returns.push(ret);
     }
     let m = returns.len().max(1) as f64;

@@ -1,0 +1,46 @@
+"""Replays the episodes of `rdpg eval --actions-out FILE` in Gymnasium and checks their returns.
+
+Each line of FILE is `{"seed": N, "return": R, "actions": [[a0, a1, ...], ...]}`. The episode
+is replayed from `env.reset(seed=N)` with the actions as float32 (the dtype rdpg acts in), and
+the Gymnasium return must equal R exactly (the walkers are bit-identical).
+
+Usage: .venv-ref/bin/python scripts/reference/replay_actions.py FILE --env BipedalWalker-v3
+Exit status 1 if any episode differs.
+"""
+
+import argparse
+import json
+import sys
+
+import gymnasium as gym
+import numpy as np
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("file")
+    ap.add_argument("--env", required=True, help="Gymnasium id, e.g. BipedalWalker-v3")
+    args = ap.parse_args()
+    env = gym.make(args.env)
+    bad = 0
+    with open(args.file) as f:
+        for line in f:
+            ep = json.loads(line)
+            env.reset(seed=ep["seed"])
+            ret, steps, done = 0.0, 0, False
+            for a in ep["actions"]:
+                if done:
+                    break
+                _, r, term, trunc, _ = env.step(np.asarray(a, dtype=np.float32))
+                ret += float(r)
+                steps += 1
+                done = term or trunc
+            same = done and steps == len(ep["actions"]) and ret == ep["return"]
+            bad += not same
+            print(json.dumps({"seed": ep["seed"], "steps": steps, "rdpg_return": ep["return"],
+                              "gymnasium_return": ret, "equal": same}))
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
