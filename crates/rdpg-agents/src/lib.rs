@@ -94,8 +94,8 @@ pub fn load_trainer(dir: &Path) -> Result<Box<dyn Trainer>> {
 /// names.
 pub fn load_policy(algo: Algo, dir: &Path) -> Result<Box<dyn DeterministicPolicy>> {
     Ok(match algo {
-        Algo::Rdpg | Algo::Ddpg => Box::new(rdpg::RdpgPolicy::new(RdpgAgent::load(dir)?)),
-        Algo::Ppo => Box::new(ppo::PpoAgent::load(dir)?),
+        Algo::Rdpg | Algo::Ddpg => Box::new(rdpg::RdpgPolicy::new(RdpgAgent::load_weights(dir)?)),
+        Algo::Ppo => Box::new(ppo::PpoAgent::load_weights(dir)?),
     })
 }
 

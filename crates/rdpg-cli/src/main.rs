@@ -12,6 +12,7 @@ mod report;
 mod rollout;
 mod rundir;
 mod train;
+mod zoo;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -40,6 +41,8 @@ enum Command {
     Rollout(rollout::RolloutArgs),
     /// Render an episode to an animated GIF (and optionally PNG frames).
     Render(render::RenderArgs),
+    /// Ship a run's best agent as a zoo entry (weights, config, test evaluation, curves, GIF).
+    Zoo(zoo::ZooArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -55,6 +58,7 @@ fn main() -> Result<()> {
         Command::Compare(a) => report::compare(&a),
         Command::Rollout(a) => rollout::run(&a),
         Command::Render(a) => render::run(&a),
+        Command::Zoo(a) => zoo::run(&a),
         Command::Bench(b) => bench::run(&b),
     }
 }

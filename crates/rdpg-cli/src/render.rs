@@ -65,32 +65,16 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         max_steps: args.max_steps,
     };
     let (env_id, summary) = if let Some(run) = &args.run {
-        let (exp, mut policy) = RunDir::new(run).policy(args.checkpoint)?;
-        if args.env.as_ref().is_some_and(|e| *e != exp.train.env) {
+        let run = RunDir::new(run);
+        let env_id = run.experiment()?.train.env;
+        if args.env.as_ref().is_some_and(|e| *e != env_id) {
             bail!(
                 "--env {:?} differs from the run's environment {:?}",
                 args.env.as_deref().unwrap_or_default(),
-                exp.train.env
+                env_id
             );
         }
-        // The agent sees the run's observation mask; the reward shown is the stock one.
-        let opts = rdpg_envs::EnvOptions {
-            hide_obs: exp.train.hide_obs.clone(),
-            ..Default::default()
-        };
-        let mut env = rdpg_envs::make_with(&exp.train.env, &opts)?;
-        let (lo, hi) = (
-            env.action_space().low.clone(),
-            env.action_space().high.clone(),
-        );
-        policy.begin_episode();
-        let summary = render_episode(
-            &mut env,
-            args.seed,
-            |obs| Ok(to_env_action(&policy.act(obs)?, &lo, &hi)),
-            &target,
-        )?;
-        (exp.train.env, summary)
+        render_run(&run, args.checkpoint, args.seed, &target)?
     } else {
         let id = args
             .env
@@ -130,6 +114,35 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         args.gif.display()
     );
     Ok(())
+}
+
+/// Renders one episode (reset seed `seed`) of a run's agent `which`, deterministic, on the
+/// run's environment; returns the environment id and what happened.
+pub fn render_run(
+    run: &RunDir,
+    which: Which,
+    seed: u64,
+    target: &RenderTarget,
+) -> Result<(String, EpisodeSummary)> {
+    let (exp, mut policy) = run.policy(which)?;
+    // The agent sees the run's observation mask; the reward shown is the stock one.
+    let opts = rdpg_envs::EnvOptions {
+        hide_obs: exp.train.hide_obs.clone(),
+        ..Default::default()
+    };
+    let mut env = rdpg_envs::make_with(&exp.train.env, &opts)?;
+    let (lo, hi) = (
+        env.action_space().low.clone(),
+        env.action_space().high.clone(),
+    );
+    policy.begin_episode();
+    let summary = render_episode(
+        &mut env,
+        seed,
+        |obs| Ok(to_env_action(&policy.act(obs)?, &lo, &hi)),
+        target,
+    )?;
+    Ok((exp.train.env, summary))
 }
 
 /// Where and how to write frames.

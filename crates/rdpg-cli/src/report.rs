@@ -145,10 +145,14 @@ fn read_runs(dirs: &[PathBuf]) -> Result<Vec<Run>> {
 
 /// `rdpg plot`.
 pub fn plot(a: &PlotArgs) -> Result<()> {
-    let runs = read_runs(&a.runs)?;
-    write_curves(&runs, &a.out)?;
+    plot_runs(&a.runs, &a.out)?;
     println!("{}", a.out.display());
     Ok(())
+}
+
+/// The learning curves of the runs in `dirs` (training return, evaluation) as a PNG at `out`.
+pub fn plot_runs(dirs: &[PathBuf], out: &Path) -> Result<()> {
+    write_curves(&read_runs(dirs)?, out)
 }
 
 /// The comparison table in the shape of the paper's Table I.

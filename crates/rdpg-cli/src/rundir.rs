@@ -10,6 +10,9 @@
 //!   evaluation (`agent/`) and that evaluation (`eval.json`);
 //! - `summary.json`: the run's headline numbers, each named by its reward and metric;
 //! - `tb/`: the same metrics as TensorBoard scalars (`tensorboard --logdir runs/`).
+//!
+//! A zoo entry (`rdpg zoo`, see [`crate::zoo`]) is read through the same type: it holds
+//! `config.toml` and one agent, `agent/`, which stands for the run's `best` agent.
 
 use std::collections::VecDeque;
 use std::fs::File;
@@ -89,9 +92,18 @@ impl RunDir {
         self.checkpoint(Which::Latest).join("pending_updates.json")
     }
 
-    /// The agent of a checkpoint: `checkpoints/<which>/agent`.
+    /// The agent of a checkpoint: `checkpoints/<which>/agent` (a zoo entry's `agent/`).
     pub fn agent(&self, which: Which) -> PathBuf {
+        if self.is_zoo_entry() {
+            return self.root.join("agent");
+        }
         self.checkpoint(which).join("agent")
+    }
+
+    /// Whether this is a zoo entry (one shipped agent, no checkpoints) rather than a run.
+    pub fn is_zoo_entry(&self) -> bool {
+        self.root.join("agent").join("agent.json").exists()
+            && !self.root.join("checkpoints").exists()
     }
 
     /// Whether a run was started here (its `config.toml` exists).
@@ -108,6 +120,12 @@ impl RunDir {
     /// The run's experiment and its agent `which` as a deterministic policy.
     pub fn policy(&self, which: Which) -> Result<(Experiment, Box<dyn DeterministicPolicy>)> {
         let exp = self.experiment()?;
+        if which == Which::Latest && self.is_zoo_entry() {
+            anyhow::bail!(
+                "{} is a zoo entry: it ships one agent (the run's best), so drop --checkpoint latest",
+                self.root.display()
+            );
+        }
         let dir = self.agent(which);
         if !dir.exists() {
             let hint = match which {
@@ -321,6 +339,37 @@ pub struct Summary {
     /// seeds that chose it), written when the run reaches its budget.
     #[serde(default)]
     pub test_eval: Option<TestSummary>,
+    /// The machine that wrote this summary (the last session of the run), see
+    /// [`machine_description`].
+    #[serde(default)]
+    pub machine: Option<String>,
+}
+
+/// This host in words: architecture, CPU model and count, memory, e.g. "x86_64, 2 CPUs (AMD
+/// EPYC 7B13), 24 GiB RAM". Training devices other than the CPU are in each run's config.
+pub fn machine_description() -> String {
+    let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let model = cpuinfo
+        .lines()
+        .find_map(|l| l.strip_prefix("model name"))
+        .and_then(|l| l.split_once(':'))
+        .map(|(_, m)| m.trim().to_string());
+    let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let mem_gib = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|m| {
+            let kb = m.lines().find_map(|l| l.strip_prefix("MemTotal:"))?;
+            kb.trim().trim_end_matches("kB").trim().parse::<f64>().ok()
+        })
+        .map(|kb| kb / (1024.0 * 1024.0));
+    let mut s = format!("{}, {cpus} CPUs", std::env::consts::ARCH);
+    if let Some(m) = model {
+        s += &format!(" ({m})");
+    }
+    if let Some(g) = mem_gib {
+        s += &format!(", {g:.0} GiB RAM");
+    }
+    s
 }
 
 /// The test evaluation in [`Summary`].
@@ -625,6 +674,7 @@ impl RunLog {
             last_eval: self.last_eval.as_ref().map(EvalSummary::from),
             best_eval: self.best_eval.as_ref().map(EvalSummary::from),
             test_eval: self.test_eval,
+            machine: Some(machine_description()),
         }
     }
 

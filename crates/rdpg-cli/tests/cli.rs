@@ -464,6 +464,56 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         .unwrap();
     assert!(!err.status.success());
     assert!(String::from_utf8_lossy(&err.stderr).contains("/nonexistent/dir/a.jsonl"));
+
+    // `rdpg zoo`: the best agent shipped without optimiser or replay; `eval` and `render`
+    // read the entry like a run and score what its summary says.
+    let zoo = tmp("zoo-entry");
+    let _ = std::fs::remove_dir_all(&zoo);
+    let zoo_cmd = || {
+        let mut c = rdpg();
+        c.args(["zoo", "--episodes", "4", "--gif-steps", "20", "--run"])
+            .arg(&one)
+            .arg("--out")
+            .arg(&zoo);
+        c
+    };
+    ok(&mut zoo_cmd());
+    for f in [
+        "agent/agent.json",
+        "agent/weights.safetensors",
+        "config.toml",
+        "summary.json",
+        "evals.csv",
+        "curves.png",
+        "episode.gif",
+    ] {
+        assert!(zoo.join(f).is_file(), "zoo entry lacks {f}");
+    }
+    assert!(!zoo.join("agent/optim.safetensors").exists());
+    assert!(!zoo.join("checkpoints").exists());
+    let zs = json_file(&zoo.join("summary.json"));
+    assert_eq!(zs["evaluation_reward"], "stock");
+    assert_eq!(zs["test"]["episodes"], 4);
+    assert_eq!(zs["test"]["first_seed"], 3_000_000);
+    let best = json_file(&one.join("checkpoints/best/eval.json"));
+    assert_eq!(zs["agent"]["steps"], best["step"]);
+    let out = ok(rdpg().args(["eval", "--episodes", "4", "--run"]).arg(&zoo));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(line["mean_stock_return"], zs["test"]["mean_return"]);
+    ok(rdpg()
+        .args(["render", "--max-steps", "5", "--run"])
+        .arg(&zoo)
+        .arg("--gif")
+        .arg(tmp("zoo.gif")));
+    let err = zoo_cmd().output().unwrap();
+    assert!(!err.status.success());
+    assert!(String::from_utf8_lossy(&err.stderr).contains("exists"));
+    let err = rdpg()
+        .args(["eval", "--checkpoint", "latest", "--run"])
+        .arg(&zoo)
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&err.stderr).contains("zoo entry"));
 }
 
 /// Unknown keys, bad values and bad overrides are rejected with the key's name.

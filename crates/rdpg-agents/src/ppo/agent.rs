@@ -494,7 +494,16 @@ impl PpoAgent {
     /// Restores an agent written by [`PpoAgent::save`]. Missing, truncated or inconsistent files
     /// give an [`AgentError::Checkpoint`] naming the file.
     pub fn load(dir: impl AsRef<Path>) -> Result<Self> {
-        let dir = dir.as_ref();
+        Self::load_impl(dir.as_ref(), true)
+    }
+
+    /// The networks of an agent written by [`PpoAgent::save`], without its optimiser state
+    /// (a shipped agent holds none): for acting or evaluating.
+    pub fn load_weights(dir: impl AsRef<Path>) -> Result<Self> {
+        Self::load_impl(dir.as_ref(), false)
+    }
+
+    fn load_impl(dir: &Path, with_optim: bool) -> Result<Self> {
         let meta_path = dir.join("agent.json");
         let meta: AgentMeta = read_json(&meta_path)?;
         if meta.format != AGENT_FORMAT {
@@ -518,9 +527,11 @@ impl PpoAgent {
             ));
         }
         restore_vars(&agent.vs, &weights, "")?;
-        let optim = read_tensors(&dir.join("optim.safetensors"))?;
-        agent.policy_opt.load_state("policy_opt.", &optim)?;
-        agent.value_opt.load_state("value_opt.", &optim)?;
+        if with_optim {
+            let optim = read_tensors(&dir.join("optim.safetensors"))?;
+            agent.policy_opt.load_state("policy_opt.", &optim)?;
+            agent.value_opt.load_state("value_opt.", &optim)?;
+        }
         agent.kl_coef = meta.kl_coef;
         agent.updates = meta.updates;
         Ok(agent)

@@ -78,7 +78,17 @@ impl RdpgAgent {
 
     /// Like [`RdpgAgent::load`], overriding the device (e.g. resume a GPU run on the CPU).
     pub fn load_with(dir: impl AsRef<Path>, device: Option<DeviceSpec>) -> Result<Self> {
-        let dir = dir.as_ref();
+        Self::load_impl(dir.as_ref(), device, true)
+    }
+
+    /// The networks of an agent written by [`RdpgAgent::save`], without its optimiser state
+    /// (a shipped agent, e.g. a zoo entry, holds none): for acting or evaluating; training it
+    /// further starts with fresh Adam moments.
+    pub fn load_weights(dir: impl AsRef<Path>) -> Result<Self> {
+        Self::load_impl(dir.as_ref(), None, false)
+    }
+
+    fn load_impl(dir: &Path, device: Option<DeviceSpec>, with_optim: bool) -> Result<Self> {
         let meta_path = dir.join("agent.json");
         let meta: CheckpointMeta = read_json(&meta_path)?;
         if meta.format != CHECKPOINT_FORMAT {
@@ -110,9 +120,11 @@ impl RdpgAgent {
                 restore_vars(vs, &weights, "target.")?;
             }
         }
-        let optim = read_tensors(&dir.join("optim.safetensors"))?;
-        agent.actor_opt.load_state("actor_opt.", &optim)?;
-        agent.critic_opt.load_state("critic_opt.", &optim)?;
+        if with_optim {
+            let optim = read_tensors(&dir.join("optim.safetensors"))?;
+            agent.actor_opt.load_state("actor_opt.", &optim)?;
+            agent.critic_opt.load_state("critic_opt.", &optim)?;
+        }
         agent.updates = meta.updates;
         agent.rng = meta.rng;
         Ok(agent)

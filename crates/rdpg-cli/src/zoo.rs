@@ -1,0 +1,270 @@
+//! `rdpg zoo`: ships a run's best agent as a zoo entry, small enough for git.
+//!
+//! A zoo entry `zoo/<name>/` holds:
+//! - `agent/`: the agent's `agent.json` and `weights.safetensors` (no optimiser state, no
+//!   replay);
+//! - `config.toml`: the run's resolved experiment;
+//! - `summary.json` ([`ZooSummary`]): the test evaluation (stock reward, test seeds, which model
+//!   selection never saw), when the agent was taken (steps, updates, wall time), the whole run,
+//!   the machine and the command that reproduces it;
+//! - `evals.csv` and `curves.png`: the run's evaluations and learning curves;
+//! - `episode.gif`: the agent on the first test seed.
+//!
+//! `rdpg eval --run zoo/<name>` and `rdpg render --run zoo/<name>` read it as a run directory
+//! whose `best` agent is `agent/`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use rdpg_agents::common::evaluate_policy;
+use rdpg_agents::EvalRecord;
+use serde::{Deserialize, Serialize};
+
+use crate::render::{render_run, RenderTarget};
+use crate::rundir::{machine_description, Metric, RunDir, Which};
+
+/// Arguments of `rdpg zoo`.
+#[derive(Debug, Args)]
+pub struct ZooArgs {
+    /// Run directory written by `rdpg train`; its best agent (chosen on the validation seeds)
+    /// is shipped.
+    #[arg(long)]
+    run: PathBuf,
+    /// The zoo entry to create, e.g. `zoo/walker-td3`. Must not exist.
+    #[arg(long)]
+    out: PathBuf,
+    /// Test episodes (default: the run's `train.test_episodes`), from the run's test seeds.
+    #[arg(long)]
+    episodes: Option<usize>,
+    /// The command that reproduces the run, shown in the summary and the README's zoo table
+    /// (default: `rdpg train --config configs/<name>.toml`).
+    #[arg(long)]
+    command: Option<String>,
+    /// Steps of the GIF (it shows the first test episode up to here).
+    #[arg(long, default_value_t = 1000)]
+    gif_steps: usize,
+}
+
+/// `summary.json` of a zoo entry.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZooSummary {
+    /// The experiment's name.
+    pub name: String,
+    /// Algorithm.
+    pub algo: String,
+    /// Environment id.
+    pub env: String,
+    /// The reward the agent was trained on, with every option that changes the reward or the
+    /// time scale.
+    pub training_reward: String,
+    /// The reward of every evaluation here: always `stock`.
+    pub evaluation_reward: String,
+    /// Deterministic test evaluation of the shipped agent.
+    pub test: ZooTest,
+    /// When the shipped agent was taken.
+    pub agent: ZooAgent,
+    /// The whole training run.
+    pub training: ZooTraining,
+    /// The machine of the training run's last session.
+    pub machine: String,
+    /// The command that reproduces the run.
+    pub reproduce: String,
+    /// Sizes in bytes of the entry's files.
+    pub files: Vec<(String, u64)>,
+}
+
+/// The test evaluation in [`ZooSummary`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZooTest {
+    /// Episodes.
+    pub episodes: usize,
+    /// First seed (episode k uses `first_seed + k`); the run's test seeds.
+    pub first_seed: u64,
+    /// Mean stock return.
+    pub mean_return: f64,
+    /// Standard deviation over episodes.
+    pub std_return: f64,
+    /// Share of episodes that reached the end of the course without falling.
+    pub success_rate: f64,
+    /// Every episode's stock return.
+    pub returns: Vec<f64>,
+}
+
+/// The shipped agent in [`ZooSummary`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZooAgent {
+    /// Environment steps of training when it was evaluated and kept.
+    pub steps: u64,
+    /// Learner updates it had received.
+    pub updates: u64,
+    /// Wall-clock seconds of training until then.
+    pub wall_seconds: Option<f64>,
+    /// Its validation evaluation (the one that chose it): mean stock return.
+    pub validation_mean_return: f64,
+    /// Validation episodes.
+    pub validation_episodes: usize,
+}
+
+/// The training run in [`ZooSummary`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZooTraining {
+    /// Environment steps of the whole run.
+    pub steps: u64,
+    /// Training episodes.
+    pub episodes: u64,
+    /// Wall-clock seconds.
+    pub wall_seconds: f64,
+    /// The run's seed.
+    pub seed: u64,
+    /// The paper's R_100MA on the training reward (with exploration noise).
+    pub best_r100_train_reward: Option<f64>,
+}
+
+/// `rdpg zoo`.
+pub fn run(a: &ZooArgs) -> Result<()> {
+    let run = RunDir::new(&a.run);
+    if run.is_zoo_entry() {
+        bail!("{} is already a zoo entry", a.run.display());
+    }
+    if a.out.exists() {
+        bail!(
+            "{} exists: remove it first (a zoo entry is written whole)",
+            a.out.display()
+        );
+    }
+    if a.episodes == Some(0) {
+        bail!("--episodes must be at least 1");
+    }
+    let exp = run.experiment()?;
+    let summary = run.read_summary()?;
+    let best_dir = run.checkpoint(Which::Best);
+    let chosen: EvalRecord = read_json(&best_dir.join("eval.json"))?;
+    let agent_dir = run.agent(Which::Best);
+    let agent_meta: serde_json::Value = read_json(&agent_dir.join("agent.json"))?;
+    let updates = agent_meta["updates"].as_u64().with_context(|| {
+        format!(
+            "{}: no `updates` count",
+            agent_dir.join("agent.json").display()
+        )
+    })?;
+    let wall_at_best = run.read_metrics()?.iter().find_map(|m| match m {
+        Metric::Eval { step, wall, .. } if *step == chosen.step => Some(*wall),
+        _ => None,
+    });
+
+    // Test first: nothing is written for an agent that cannot be evaluated.
+    let (_, mut policy) = run.policy(Which::Best)?;
+    let t = &exp.train;
+    let episodes = a.episodes.unwrap_or(t.test_episodes);
+    let test = evaluate_policy(policy.as_mut(), t, episodes, t.test_seed)?;
+
+    // Write into a temporary sibling, then rename: no half-written entry is left behind.
+    let tmp = a.out.with_extension("partial");
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
+    }
+    std::fs::create_dir_all(tmp.join("agent"))
+        .with_context(|| format!("creating {}", tmp.display()))?;
+    for f in ["agent.json", "weights.safetensors"] {
+        copy(&agent_dir.join(f), &tmp.join("agent").join(f))?;
+    }
+    copy(&run.config(), &tmp.join("config.toml"))?;
+    copy(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
+    crate::report::plot_runs(std::slice::from_ref(&a.run), &tmp.join("curves.png"))?;
+    let target = RenderTarget {
+        gif: tmp.join("episode.gif"),
+        png_dir: None,
+        every: 4,
+        scale_down: 2,
+        max_steps: Some(a.gif_steps),
+    };
+    render_run(&RunDir::new(&tmp), Which::Best, t.test_seed, &target)?;
+
+    let mut files = Vec::new();
+    for f in [
+        "agent/agent.json",
+        "agent/weights.safetensors",
+        "config.toml",
+        "evals.csv",
+        "curves.png",
+        "episode.gif",
+    ] {
+        let p = tmp.join(f);
+        let len = std::fs::metadata(&p)
+            .with_context(|| format!("{}", p.display()))?
+            .len();
+        files.push((f.to_string(), len));
+    }
+    let name = if exp.name.is_empty() {
+        a.out
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    } else {
+        exp.name.clone()
+    };
+    let zs = ZooSummary {
+        reproduce: a
+            .command
+            .clone()
+            .unwrap_or_else(|| format!("rdpg train --config configs/{name}.toml")),
+        name,
+        algo: exp.algo.as_str().into(),
+        env: t.env.clone(),
+        training_reward: summary.train_reward.clone(),
+        evaluation_reward: "stock".into(),
+        test: ZooTest {
+            episodes,
+            first_seed: t.test_seed,
+            mean_return: test.mean_return,
+            std_return: test.std_return,
+            success_rate: test.success_rate,
+            returns: test.returns.clone(),
+        },
+        agent: ZooAgent {
+            steps: chosen.step,
+            updates,
+            wall_seconds: wall_at_best,
+            validation_mean_return: chosen.mean_return,
+            validation_episodes: chosen.returns.len(),
+        },
+        training: ZooTraining {
+            steps: summary.steps,
+            episodes: summary.episodes,
+            wall_seconds: summary.wall_seconds,
+            seed: t.seed,
+            best_r100_train_reward: summary.best_r100_train_reward,
+        },
+        machine: summary.machine.clone().unwrap_or_else(|| {
+            format!(
+                "{} (the machine that ran `rdpg zoo`; the run did not record its own)",
+                machine_description()
+            )
+        }),
+        files,
+    };
+    let text = serde_json::to_string_pretty(&zs)?;
+    std::fs::write(tmp.join("summary.json"), text + "\n")
+        .with_context(|| format!("writing {}", tmp.join("summary.json").display()))?;
+    std::fs::rename(&tmp, &a.out)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), a.out.display()))?;
+    println!("{}", serde_json::to_string(&zs)?);
+    Ok(())
+}
+
+fn copy(from: &Path, to: &Path) -> Result<()> {
+    std::fs::copy(from, to)
+        .with_context(|| format!("copying {} to {}", from.display(), to.display()))?;
+    Ok(())
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
+}
