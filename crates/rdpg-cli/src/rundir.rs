@@ -16,7 +16,7 @@
 
 use std::collections::VecDeque;
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -139,20 +139,51 @@ impl RunDir {
         Ok((exp, policy))
     }
 
-    /// Every metric row of `metrics.jsonl`, in order.
+    /// Every metric row of `metrics.jsonl`, in order. A torn last row (a crash while it was
+    /// written: no final newline, not parseable) is left out; any other bad row is an error.
     pub fn read_metrics(&self) -> Result<Vec<Metric>> {
+        Ok(self.read_metrics_upto(u64::MAX)?.0)
+    }
+
+    /// The rows of `metrics.jsonl` up to `upto` steps, and the length in bytes of the file's
+    /// prefix that holds exactly them (a torn last row excluded, see [`RunDir::read_metrics`]).
+    pub fn read_metrics_upto(&self, upto: u64) -> Result<(Vec<Metric>, u64)> {
         let path = self.metrics();
         let mut out = Vec::new();
         if !path.exists() {
-            return Ok(out);
+            return Ok((out, 0));
         }
-        let file = File::open(&path).with_context(|| format!("reading {}", path.display()))?;
-        for (i, line) in BufReader::new(file).lines().enumerate() {
-            let m: Metric = serde_json::from_str(&line?)
-                .with_context(|| format!("{}:{}: bad metrics line", path.display(), i + 1))?;
+        let text = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        let mut kept = 0u64;
+        let mut start = 0usize;
+        let mut line_no = 0;
+        while start < text.len() {
+            line_no += 1;
+            let (end, complete) = match text[start..].iter().position(|&b| b == b'\n') {
+                Some(k) => (start + k, true),
+                None => (text.len(), false),
+            };
+            let parsed = std::str::from_utf8(&text[start..end])
+                .ok()
+                .and_then(|l| serde_json::from_str::<Metric>(l).ok());
+            let m = match (parsed, complete) {
+                (Some(m), true) => m,
+                // The last row lost its end in a crash: it was never part of the run's record.
+                (_, false) => break,
+                (None, true) => anyhow::bail!(
+                    "{}:{line_no}: bad metrics line (the file is corrupt; rows after a crash \
+                     are only ever torn at the end)",
+                    path.display()
+                ),
+            };
+            if m.step() > upto {
+                break;
+            }
             out.push(m);
+            start = end + 1;
+            kept = start as u64;
         }
-        Ok(out)
+        Ok((out, kept))
     }
 
     /// The run's `summary.json`.
@@ -416,9 +447,9 @@ impl From<&EvalRecord> for EvalSummary {
 /// Collects metrics into the run directory and drives the progress bar.
 pub struct RunLog {
     dir: RunDir,
-    jsonl: BufWriter<File>,
-    episodes_csv: BufWriter<File>,
-    evals_csv: BufWriter<File>,
+    jsonl: File,
+    episodes_csv: File,
+    evals_csv: File,
     ma: MovingAverage,
     ma_stock: MovingAverage,
     episodes: u64,
@@ -441,7 +472,7 @@ pub struct RunLog {
     /// The final test evaluation, once made.
     pub test_eval: Option<TestSummary>,
     /// TensorBoard scalars (`tb/`), written as metrics arrive.
-    tb: SummaryWriter<BufWriter<File>>,
+    tb: SummaryWriter<File>,
 }
 
 const EPISODES_HEADER: &str = "step,return,stock_return,len,success,r100,updates,critic_loss,\
@@ -459,8 +490,19 @@ impl RunLog {
         stop: Arc<AtomicBool>,
     ) -> Result<Self> {
         let path = dir.metrics();
-        let mut old = dir.read_metrics()?;
-        old.retain(|m| m.step() <= upto);
+        // `metrics.jsonl` is the run's record: it is cut back to the checkpoint in place (a
+        // resumed run continues from there bit-identically), never rewritten. The CSVs and
+        // TensorBoard files are views of it, rebuilt below.
+        let (old, kept_bytes) = dir.read_metrics_upto(upto)?;
+        let jsonl = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        jsonl
+            .set_len(kept_bytes)
+            .and_then(|_| jsonl.sync_all())
+            .with_context(|| format!("cutting {} back to step {upto}", path.display()))?;
         let pending = dir.pending_updates();
         let updates = if upto > 0 && pending.exists() {
             serde_json::from_str(&std::fs::read_to_string(&pending)?)
@@ -468,11 +510,26 @@ impl RunLog {
         } else {
             UpdateSums::default()
         };
-        let create = |name: &str, header: &str| -> Result<BufWriter<File>> {
-            let mut w = BufWriter::new(File::create(dir.root().join(name))?);
-            w.write_all(header.as_bytes())?;
-            Ok(w)
+        let create = |name: &str, header: &str| -> Result<File> {
+            let p = dir.root().join(name);
+            let mut f = File::create(&p).with_context(|| format!("creating {}", p.display()))?;
+            f.write_all(header.as_bytes())
+                .with_context(|| format!("writing {}", p.display()))?;
+            Ok(f)
         };
+        let tb_dir = dir.root().join("tb");
+        let old_tb: Vec<PathBuf> = std::fs::read_dir(&tb_dir)
+            .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
+            .unwrap_or_default();
+        std::fs::create_dir_all(&tb_dir)
+            .with_context(|| format!("creating {}", tb_dir.display()))?;
+        let micros = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros());
+        let tb_path = tb_dir.join(format!("rdpg.out.tfevents.{micros}.rdpg"));
+        let tb = File::create(&tb_path)
+            .and_then(SummaryWriter::new)
+            .with_context(|| format!("creating {}", tb_path.display()))?;
         let bar = if quiet {
             ProgressBar::hidden()
         } else {
@@ -489,7 +546,7 @@ impl RunLog {
         };
         let mut log = Self {
             dir: dir.clone(),
-            jsonl: BufWriter::new(File::create(&path)?),
+            jsonl,
             episodes_csv: create("episodes.csv", EPISODES_HEADER)?,
             evals_csv: create("evals.csv", EVALS_HEADER)?,
             ma: MovingAverage::default(),
@@ -506,8 +563,7 @@ impl RunLog {
             stop,
             updates,
             test_eval: None,
-            tb: SummaryWriter::from_prefix(dir.root().join("tb").join("rdpg"))
-                .with_context(|| format!("creating {}", dir.root().join("tb").display()))?,
+            tb,
         };
         for m in old {
             match &m {
@@ -532,10 +588,13 @@ impl RunLog {
             }
             let (Metric::Episode { wall, .. } | Metric::Eval { wall, .. }) = &m;
             log.wall_offset = *wall;
-            log.write(&m)?;
+            log.write_views(&m)?;
         }
         log.new_best = false;
-        log.flush()?;
+        // The rebuilt TensorBoard file holds every kept row: the older ones can go.
+        for p in old_tb.iter().filter(|p| **p != tb_path) {
+            let _ = std::fs::remove_file(p);
+        }
         Ok(log)
     }
 
@@ -569,10 +628,20 @@ impl RunLog {
         self.last_eval = Some(r.clone());
     }
 
-    /// Appends a metric row to the files and TensorBoard.
+    /// Appends a metric row to `metrics.jsonl` (one `write` of the whole line, so a crash
+    /// can only tear the last row), then to the CSVs and TensorBoard. Every file is written
+    /// through unbuffered: a row is on disk (in the OS's cache) as soon as this returns.
     pub fn write(&mut self, m: &Metric) -> Result<()> {
-        serde_json::to_writer(&mut self.jsonl, m)?;
-        self.jsonl.write_all(b"\n")?;
+        let mut line = serde_json::to_vec(m)?;
+        line.push(b'\n');
+        self.jsonl
+            .write_all(&line)
+            .with_context(|| format!("writing {}", self.dir.metrics().display()))?;
+        self.write_views(m)
+    }
+
+    /// The CSV and TensorBoard rows of a metric.
+    fn write_views(&mut self, m: &Metric) -> Result<()> {
         self.write_tensorboard(m)?;
         match m {
             Metric::Episode {
@@ -586,9 +655,8 @@ impl RunLog {
                 learner: u,
             } => {
                 let opt = |x: Option<f64>| x.map_or(String::new(), |r| r.to_string());
-                writeln!(
-                    self.episodes_csv,
-                    "{step},{ret},{stock_return},{len},{},{},{},{},{},{},{},{wall:.3}",
+                let row = format!(
+                    "{step},{ret},{stock_return},{len},{},{},{},{},{},{},{},{wall:.3}\n",
                     *success as u8,
                     opt(*r100),
                     u.updates,
@@ -596,7 +664,10 @@ impl RunLog {
                     opt(u.actor_loss),
                     opt(u.q_mean),
                     opt(u.injected_share)
-                )?
+                );
+                self.episodes_csv
+                    .write_all(row.as_bytes())
+                    .context("writing episodes.csv")?
             }
             Metric::Eval {
                 step,
@@ -604,10 +675,13 @@ impl RunLog {
                 std_return,
                 success_rate,
                 wall,
-            } => writeln!(
-                self.evals_csv,
-                "{step},{mean_return},{std_return},{success_rate},{wall:.3}"
-            )?,
+            } => self
+                .evals_csv
+                .write_all(
+                    format!("{step},{mean_return},{std_return},{success_rate},{wall:.3}\n")
+                        .as_bytes(),
+                )
+                .context("writing evals.csv")?,
         }
         Ok(())
     }
@@ -651,12 +725,11 @@ impl RunLog {
         Ok(())
     }
 
-    /// Flushes the metric files.
-    pub fn flush(&mut self) -> Result<()> {
-        self.jsonl.flush()?;
-        self.episodes_csv.flush()?;
-        self.evals_csv.flush()?;
-        Ok(())
+    /// Forces the metric record to the disk (`fsync`), e.g. with each checkpoint.
+    pub fn sync(&mut self) -> Result<()> {
+        self.jsonl
+            .sync_all()
+            .with_context(|| format!("syncing {}", self.dir.metrics().display()))
     }
 
     /// The run's headline numbers at `steps`.

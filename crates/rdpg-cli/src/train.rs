@@ -79,7 +79,7 @@ impl TrainObserver for Observer<'_> {
             success_rate: r.success_rate,
             wall: self.log.wall(),
         };
-        if let Err(e) = self.log.write(&m).and_then(|_| self.log.flush()) {
+        if let Err(e) = self.log.write(&m) {
             self.error.get_or_insert(e);
         }
         self.log.bar.set_message(self.log.message());
@@ -187,7 +187,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let mut obs = Observer::new(&mut log);
         trainer.run(target, &mut obs)?;
         if let Some(e) = obs.error {
-            log.flush()?;
+            let _ = log.sync();
             return Err(e);
         }
         if std::mem::take(&mut log.new_best) {
@@ -196,7 +196,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
             save_latest(trainer.as_mut(), &run, &log)?;
-            log.flush()?;
+            log.sync()?;
             log.write_summary(&exp, trainer.steps())?;
             log.bar.abandon();
             eprintln!(
@@ -209,6 +209,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         if trainer.steps() >= next_ckpt {
             save_latest(trainer.as_mut(), &run, &log)?;
+            log.sync()?;
             next_ckpt = every(exp.run.checkpoint_every, trainer.steps());
         }
     }
@@ -226,7 +227,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     }
     save_latest(trainer.as_mut(), &run, &log)?;
     log.test_eval = Some(test_best(&run, &exp, log.best_eval.as_ref())?);
-    log.flush()?;
+    log.sync()?;
     log.write_summary(&exp, trainer.steps())?;
     log.bar.finish();
     let s = log.summary(&exp, trainer.steps());

@@ -298,9 +298,48 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     let two = tmp("run-two");
     let _ = std::fs::remove_dir_all(&two);
     train(&two, 350);
+    // A crash while a metric row was written leaves it torn: resume drops it and keeps the
+    // record before it byte for byte (no rewrite).
+    let before = std::fs::read_to_string(two.join("metrics.jsonl")).unwrap();
+    let mut torn = before.clone();
+    torn.push_str("{\"kind\":\"episode\",\"step\":35");
+    std::fs::write(two.join("metrics.jsonl"), torn).unwrap();
     ok(rdpg()
         .args(["train", "--quiet", "--steps", "700", "--resume"])
         .arg(&two));
+    let after = std::fs::read_to_string(two.join("metrics.jsonl")).unwrap();
+    assert!(after.starts_with(&before), "resume rewrote the kept rows");
+    let jsonl_rows = |d: &PathBuf| -> Vec<Value> {
+        std::fs::read_to_string(d.join("metrics.jsonl"))
+            .unwrap()
+            .lines()
+            .map(|l| {
+                let mut v: Value = serde_json::from_str(l).unwrap();
+                v.as_object_mut().unwrap().remove("wall");
+                v
+            })
+            // `two` also holds the evaluation that ended its first budget, at step 350.
+            .filter(|v| v["kind"] == "episode")
+            .collect()
+    };
+    let (r1, r2) = (jsonl_rows(&one), jsonl_rows(&two));
+    assert_eq!(r1.len(), r2.len());
+    for (a, b) in r1.iter().zip(&r2) {
+        assert_eq!(a, b);
+    }
+    // A corrupt row that is not the last is an error, not silently skipped.
+    let bad = tmp("run-bad");
+    let _ = std::fs::remove_dir_all(&bad);
+    train(&bad, 100);
+    let text = std::fs::read_to_string(bad.join("metrics.jsonl")).unwrap();
+    std::fs::write(bad.join("metrics.jsonl"), format!("garbage\n{text}")).unwrap();
+    let out = rdpg()
+        .args(["train", "--quiet", "--steps", "200", "--resume"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("metrics.jsonl:1: bad metrics line"));
     let weights = |d: &PathBuf| {
         std::fs::read(d.join("checkpoints/latest/agent/weights.safetensors")).unwrap()
     };
