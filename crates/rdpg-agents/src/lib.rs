@@ -83,6 +83,7 @@ pub fn new_trainer(train: TrainConfig, learner: Learner) -> Result<Box<dyn Train
 /// Resumes the trainer checkpoint in `dir`, whatever its algorithm (read from its
 /// `checkpoint.json`). Continuing gives the same result as never having stopped.
 pub fn load_trainer(dir: &Path) -> Result<Box<dyn Trainer>> {
+    common::checkpoint::verify(dir)?;
     Ok(match Header::read(dir, None)?.trainer {
         TrainerKind::OffPolicy => Box::new(OffPolicyTrainer::load(dir)?),
         TrainerKind::Ppo => Box::new(PpoTrainer::load(dir)?),
@@ -93,6 +94,7 @@ pub fn load_trainer(dir: &Path) -> Result<Box<dyn Trainer>> {
 /// `checkpoints/best/agent`) as a deterministic policy on the CPU-or-GPU device its config
 /// names.
 pub fn load_policy(algo: Algo, dir: &Path) -> Result<Box<dyn DeterministicPolicy>> {
+    common::checkpoint::verify(dir)?;
     Ok(match algo {
         Algo::Rdpg | Algo::Ddpg => Box::new(rdpg::RdpgPolicy::new(RdpgAgent::load_weights(dir)?)),
         Algo::Ppo => Box::new(ppo::PpoAgent::load_weights(dir)?),

@@ -92,6 +92,84 @@ impl RunDir {
         self.checkpoint(Which::Latest).join("pending_updates.json")
     }
 
+    /// Takes the run directory's lock (`.lock`, an advisory `flock`), held until the returned
+    /// file is dropped: a second `rdpg train` on the same directory is refused.
+    pub fn lock(&self) -> Result<File> {
+        let path = self.root.join(".lock");
+        let f = File::options()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        match f.try_lock() {
+            Ok(()) => Ok(f),
+            Err(std::fs::TryLockError::WouldBlock) => anyhow::bail!(
+                "{} is in use by another `rdpg train` (it holds {}); wait for it or stop it",
+                self.root.display(),
+                path.display()
+            ),
+            Err(std::fs::TryLockError::Error(e)) => {
+                Err(e).with_context(|| format!("locking {}", path.display()))
+            }
+        }
+    }
+
+    /// A new, empty `<dst>.partial` directory to write a checkpoint into before
+    /// [`RunDir::commit`] moves it to `dst` (a stale one, left by a crash, is removed).
+    pub fn fresh_partial(&self, dst: &Path) -> Result<PathBuf> {
+        let tmp = dst.with_extension("partial");
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
+        }
+        std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+        Ok(tmp)
+    }
+
+    /// Moves the sealed checkpoint `tmp` to `dst`: the one it replaces becomes
+    /// `<dst>.previous` until the new one is in place, so that a crash between the two renames
+    /// leaves a complete checkpoint that [`RunDir::recover`] puts back.
+    pub fn commit(&self, tmp: &Path, dst: &Path) -> Result<()> {
+        let prev = dst.with_extension("previous");
+        let ctx = |what: &str, p: &Path| format!("{what} {}", p.display());
+        if prev.exists() {
+            std::fs::remove_dir_all(&prev).with_context(|| ctx("removing", &prev))?;
+        }
+        if dst.exists() {
+            std::fs::rename(dst, &prev).with_context(|| ctx("moving aside", dst))?;
+        }
+        std::fs::rename(tmp, dst).with_context(|| ctx("moving into place", tmp))?;
+        if let Some(parent) = dst.parent() {
+            File::open(parent)
+                .and_then(|f| f.sync_all())
+                .with_context(|| ctx("syncing", parent))?;
+        }
+        if prev.exists() {
+            std::fs::remove_dir_all(&prev).with_context(|| ctx("removing", &prev))?;
+        }
+        Ok(())
+    }
+
+    /// Puts the checkpoints back in order after a crash inside [`RunDir::commit`]: a
+    /// `<which>.previous` with no `<which>` becomes `<which>` again; unfinished `.partial`
+    /// directories are removed.
+    pub fn recover(&self) -> Result<()> {
+        for which in [Which::Latest, Which::Best] {
+            let dst = self.checkpoint(which);
+            let prev = dst.with_extension("previous");
+            if !dst.exists() && prev.exists() {
+                std::fs::rename(&prev, &dst)
+                    .with_context(|| format!("restoring {}", prev.display()))?;
+            }
+            let tmp = dst.with_extension("partial");
+            if tmp.exists() {
+                std::fs::remove_dir_all(&tmp)
+                    .with_context(|| format!("removing {}", tmp.display()))?;
+            }
+        }
+        Ok(())
+    }
+
     /// The agent of a checkpoint: `checkpoints/<which>/agent` (a zoo entry's `agent/`).
     pub fn agent(&self, which: Which) -> PathBuf {
         if self.is_zoo_entry() {

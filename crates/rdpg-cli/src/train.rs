@@ -9,6 +9,7 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use rdpg_agents::common::checkpoint::seal;
 use rdpg_agents::common::{evaluate_policy, evaluate_policy_traced, EpisodeTrace};
 use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats};
 use serde::Serialize;
@@ -102,32 +103,62 @@ impl TrainObserver for Observer<'_> {
 }
 
 /// Saves the whole training state to `checkpoints/latest`, with the update statistics the
-/// metric files have not logged yet.
+/// metric files have not logged yet. Written whole into a new directory, sealed (fsync and
+/// checksums) and only then moved into place: a crash or a full disk at any moment leaves the
+/// previous checkpoint intact.
 fn save_latest(trainer: &mut dyn Trainer, run: &RunDir, log: &RunLog) -> Result<()> {
-    trainer.save(&run.checkpoint(Which::Latest))?;
-    std::fs::write(run.pending_updates(), serde_json::to_string(&log.updates)?)?;
-    Ok(())
+    let dst = run.checkpoint(Which::Latest);
+    let tmp = run.fresh_partial(&dst)?;
+    trainer.save(&tmp)?;
+    let pending = tmp.join("pending_updates.json");
+    std::fs::write(&pending, serde_json::to_string(&log.updates)?)
+        .with_context(|| format!("writing {}", pending.display()))?;
+    seal(&tmp.join("agent"))?;
+    seal(&tmp)?;
+    run.commit(&tmp, &dst)
 }
 
-/// Saves the agent alone (the `best` checkpoint), with the evaluation that chose it.
-fn save_best(trainer: &dyn Trainer, dir: &Path, eval: Option<&EvalRecord>) -> Result<()> {
-    trainer.save_agent(&dir.join("agent"))?;
+/// Saves the agent alone (the `best` checkpoint), with the evaluation that chose it; written
+/// and moved into place like [`save_latest`].
+fn save_best(trainer: &dyn Trainer, run: &RunDir, eval: Option<&EvalRecord>) -> Result<()> {
+    let dst = run.checkpoint(Which::Best);
+    let tmp = run.fresh_partial(&dst)?;
+    trainer.save_agent(&tmp.join("agent"))?;
     if let Some(e) = eval {
-        std::fs::write(dir.join("eval.json"), serde_json::to_string_pretty(e)?)?;
+        let p = tmp.join("eval.json");
+        std::fs::write(&p, serde_json::to_string_pretty(e)?)
+            .with_context(|| format!("writing {}", p.display()))?;
     }
-    Ok(())
+    seal(&tmp.join("agent"))?;
+    seal(&tmp)?;
+    run.commit(&tmp, &dst)
 }
 
 /// `rdpg train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     {
+        // Ctrl-C, SIGTERM and SIGHUP: finish the current step, save, exit 130. A second one
+        // exits at once (the last checkpoint on disk stays whole: checkpoints are committed
+        // by rename).
         let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("installing the Ctrl-C handler")?;
+        ctrlc::set_handler(move || {
+            if stop.swap(true, Ordering::SeqCst) {
+                eprintln!(
+                    "second interrupt: exiting without saving (the last checkpoint is intact)"
+                );
+                std::process::exit(130);
+            }
+        })
+        .context("installing the signal handler")?;
     }
-    let (run, exp, mut trainer) = if let Some(dir) = &a.resume {
+    let (run, exp, mut trainer, _lock) = if let Some(dir) = &a.resume {
         let run = RunDir::new(dir);
+        if !run.exists() {
+            bail!("{} holds no run (no config.toml) to resume", dir.display());
+        }
+        let lock = run.lock()?;
+        run.recover()?;
         let mut exp = run.experiment()?;
         let mut trainer = rdpg_agents::load_trainer(&run.checkpoint(Which::Latest))
             .with_context(|| format!("resuming {}", dir.display()))?;
@@ -137,7 +168,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             trainer.set_total_steps(n);
             std::fs::write(run.config(), exp.to_toml()?)?;
         }
-        (run, exp, trainer)
+        (run, exp, trainer, lock)
     } else {
         let path = a.config.as_ref().expect("clap requires --config");
         let mut sets = a.set.clone();
@@ -156,16 +187,18 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 run.root().display()
             );
         }
+        // The trainer first: a start that fails (e.g. no CUDA device) leaves no directory.
+        let trainer = rdpg_agents::new_trainer(exp.train.clone(), exp.learner())?;
         std::fs::create_dir_all(run.root())
             .with_context(|| format!("creating run directory {}", run.root().display()))?;
-        std::fs::write(run.config(), exp.to_toml()?)?;
-        let trainer = rdpg_agents::new_trainer(exp.train.clone(), exp.learner())?;
-        (run, exp, trainer)
+        let lock = run.lock()?;
+        std::fs::write(run.config(), exp.to_toml()?)
+            .with_context(|| format!("writing {}", run.config().display()))?;
+        (run, exp, trainer, lock)
     };
     let total = exp.train.total_steps;
     let mut log = RunLog::open(&run, trainer.steps(), total, a.quiet, stop.clone())?;
     let latest = run.checkpoint(Which::Latest);
-    let best = run.checkpoint(Which::Best);
     // The next multiple of `k` after `step` (never when `k` is 0).
     let every = |k: u64, step: u64| step.checked_div(k).map_or(u64::MAX, |q| (q + 1) * k);
     if !a.quiet {
@@ -191,7 +224,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             return Err(e);
         }
         if std::mem::take(&mut log.new_best) {
-            save_best(trainer.as_ref(), &best, log.best_eval.as_ref())?;
+            save_best(trainer.as_ref(), &run, log.best_eval.as_ref())?;
         }
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
@@ -205,7 +238,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 latest.display(),
                 run.root().display()
             );
-            return Ok(());
+            // Not a success: `rdpg train ... && next-step` must not carry on.
+            std::process::exit(130);
         }
         if trainer.steps() >= next_ckpt {
             save_latest(trainer.as_mut(), &run, &log)?;
@@ -222,7 +256,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let r = trainer.evaluate()?;
         Observer::new(&mut log).on_eval(&r);
         if std::mem::take(&mut log.new_best) {
-            save_best(trainer.as_ref(), &best, log.best_eval.as_ref())?;
+            save_best(trainer.as_ref(), &run, log.best_eval.as_ref())?;
         }
     }
     save_latest(trainer.as_mut(), &run, &log)?;

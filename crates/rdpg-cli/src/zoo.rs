@@ -2,7 +2,7 @@
 //!
 //! A zoo entry `zoo/<name>/` holds:
 //! - `agent/`: the agent's `agent.json` and `weights.safetensors` (no optimiser state, no
-//!   replay);
+//!   replay), sealed by `manifest.json` (sizes and CRC-32s, checked on every load);
 //! - `config.toml`: the run's resolved experiment;
 //! - `summary.json` ([`ZooSummary`]): the test evaluation (stock reward, test seeds, which model
 //!   selection never saw), when the agent was taken (steps, updates, wall time), the whole run,
@@ -17,6 +17,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use rdpg_agents::common::checkpoint::seal;
 use rdpg_agents::common::evaluate_policy;
 use rdpg_agents::EvalRecord;
 use serde::{Deserialize, Serialize};
@@ -173,6 +174,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     for f in ["agent.json", "weights.safetensors"] {
         copy(&agent_dir.join(f), &tmp.join("agent").join(f))?;
     }
+    seal(&tmp.join("agent"))?;
     copy(&run.config(), &tmp.join("config.toml"))?;
     copy(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
     crate::report::plot_runs(std::slice::from_ref(&a.run), &tmp.join("curves.png"))?;
@@ -189,6 +191,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     for f in [
         "agent/agent.json",
         "agent/weights.safetensors",
+        "agent/manifest.json",
         "config.toml",
         "evals.csv",
         "curves.png",

@@ -585,6 +585,21 @@ fn train_rejects_bad_configs_naming_the_key() {
         assert!(!err.contains("panicked"), "{set}: {err}");
     }
     assert!(!tmp("never").join("config.toml").exists());
+
+    // A start that fails after validation (no CUDA here, or a bad device) leaves no run
+    // directory behind, so the retry is not blocked.
+    if !rdpg_agents::cuda_available() {
+        let out = rdpg()
+            .args(["train", "--quiet", "--config"])
+            .arg(&cfg)
+            .args(["--out"])
+            .arg(tmp("no-cuda"))
+            .args(["--set", "agent.device=\"cuda\""])
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        assert!(!tmp("no-cuda").exists(), "a failed start left its directory");
+    }
 }
 
 /// Every experiment in `configs/` trains (300 steps, a few updates, one evaluation episode).
@@ -676,12 +691,46 @@ fn interrupt_saves_and_the_run_resumes() {
         );
         std::thread::sleep(std::time::Duration::from_millis(100));
     }
-    ok(Command::new("kill").args(["-INT", &child.id().to_string()]));
+    // One writer per run directory: a second `train` on it is refused while this one runs.
+    let second = rdpg()
+        .args(["train", "--quiet", "--resume"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(!second.status.success());
+    assert!(
+        String::from_utf8_lossy(&second.stderr).contains("in use by another"),
+        "{}",
+        String::from_utf8_lossy(&second.stderr)
+    );
+    // SIGTERM (as from a scheduler) saves like Ctrl-C, and the exit status says it stopped.
+    ok(Command::new("kill").args(["-TERM", &child.id().to_string()]));
     let out = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
+    assert_eq!(out.status.code(), Some(130), "{err}");
     assert!(err.contains("interrupted at step"), "{err}");
-    assert!(dir.join("checkpoints/latest/loop.bin").exists());
+    let latest = dir.join("checkpoints/latest");
+    assert!(latest.join("loop.bin").exists() && latest.join("manifest.json").exists());
+    assert!(!dir.join("checkpoints/latest.partial").exists());
+
+    // A flipped byte in a checkpoint is refused, naming the file; the intact one resumes.
+    let loop_bin = latest.join("loop.bin");
+    let good = std::fs::read(&loop_bin).unwrap();
+    let mut bad = good.clone();
+    bad[0] ^= 0x10;
+    std::fs::write(&loop_bin, &bad).unwrap();
+    let out = rdpg()
+        .args(["train", "--quiet", "--steps", "3000", "--resume"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("loop.bin") && err.contains("damaged"), "{err}");
+    std::fs::write(&loop_bin, &good).unwrap();
+    // A crash between the two renames of a checkpoint commit leaves `latest.previous` alone:
+    // resume puts it back.
+    std::fs::rename(&latest, dir.join("checkpoints/latest.previous")).unwrap();
     let out = ok(rdpg()
         .args(["train", "--quiet", "--steps", "3000", "--resume"])
         .arg(&dir));

@@ -6,8 +6,14 @@
 //! `collector.bin` (environments, episodes in progress, counters), `loop.bin` (the
 //! algorithm's own loop state) and `agent/` (the agent's networks and optimiser). The agent
 //! directory alone is what `checkpoints/best` holds.
+//!
+//! Every file is flushed and its write errors returned. [`seal`] then fsyncs a finished
+//! checkpoint directory and writes its `manifest.json` (size and CRC-32 of every file), which
+//! [`verify`] checks before anything is loaded: a torn, truncated or bit-flipped checkpoint is
+//! refused, naming the file, instead of resuming from garbage.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
+use std::io::Write;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -24,10 +30,132 @@ pub fn ckpt_err(path: &Path, e: impl std::fmt::Display) -> AgentError {
     AgentError::Checkpoint(format!("{}: {e}", path.display()))
 }
 
-/// Writes `value` with bincode.
+/// Writes `value` with bincode; every write error (e.g. a full disk) is returned.
 pub fn write_bin<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     let file = std::fs::File::create(path).map_err(|e| ckpt_err(path, e))?;
-    bincode::serialize_into(std::io::BufWriter::new(file), value).map_err(|e| ckpt_err(path, e))
+    let mut w = std::io::BufWriter::new(file);
+    bincode::serialize_into(&mut w, value).map_err(|e| ckpt_err(path, e))?;
+    w.flush().map_err(|e| ckpt_err(path, e))
+}
+
+/// The manifest of a sealed checkpoint directory.
+pub const MANIFEST: &str = "manifest.json";
+
+#[derive(Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+struct Manifest {
+    /// Every file under the directory (paths relative to it, `/`-separated).
+    files: BTreeMap<String, FileSeal>,
+}
+
+#[derive(Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+struct FileSeal {
+    len: u64,
+    crc32: u32,
+}
+
+fn walk(root: &Path, rel: &str, out: &mut Vec<String>) -> std::io::Result<()> {
+    let mut entries: Vec<_> = std::fs::read_dir(root.join(rel))?.collect::<std::io::Result<_>>()?;
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let path = if rel.is_empty() {
+            name
+        } else {
+            format!("{rel}/{name}")
+        };
+        if e.file_type()?.is_dir() {
+            walk(root, &path, out)?;
+        } else if path != MANIFEST {
+            out.push(path);
+        }
+    }
+    Ok(())
+}
+
+fn file_seal(path: &Path) -> Result<FileSeal> {
+    let bytes = std::fs::read(path).map_err(|e| ckpt_err(path, e))?;
+    Ok(FileSeal {
+        len: bytes.len() as u64,
+        crc32: crc32fast::hash(&bytes),
+    })
+}
+
+fn sync_path(path: &Path) -> Result<()> {
+    std::fs::File::open(path)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| ckpt_err(path, format!("cannot sync: {e}")))
+}
+
+/// Seals the finished checkpoint directory `dir`: fsyncs every file under it, writes
+/// `manifest.json` with each file's size and CRC-32 (fsynced too), then fsyncs the
+/// directories. Call it before moving the directory into place.
+pub fn seal(dir: &Path) -> Result<()> {
+    let mut files = Vec::new();
+    walk(dir, "", &mut files).map_err(|e| ckpt_err(dir, e))?;
+    let mut m = Manifest {
+        files: BTreeMap::new(),
+    };
+    for f in files {
+        let p = dir.join(&f);
+        sync_path(&p)?;
+        m.files.insert(f, file_seal(&p)?);
+    }
+    let path = dir.join(MANIFEST);
+    let mut file = std::fs::File::create(&path).map_err(|e| ckpt_err(&path, e))?;
+    file.write_all(serde_json::to_string_pretty(&m)?.as_bytes())
+        .and_then(|_| file.sync_all())
+        .map_err(|e| ckpt_err(&path, e))?;
+    let mut dirs: Vec<&Path> = m
+        .files
+        .keys()
+        .filter_map(|f| Path::new(f).parent())
+        .collect();
+    dirs.dedup();
+    for d in dirs {
+        sync_path(&dir.join(d))?;
+    }
+    Ok(())
+}
+
+/// Checks the checkpoint directory `dir` against its `manifest.json` (see [`seal`]): every
+/// listed file present with its size and CRC-32, and no file missing from the list. A
+/// directory without a manifest (written before rdpg sealed checkpoints) passes.
+pub fn verify(dir: &Path) -> Result<()> {
+    let path = dir.join(MANIFEST);
+    if !path.exists() {
+        return Ok(());
+    }
+    let m: Manifest = read_json(&path)?;
+    let mut files = Vec::new();
+    walk(dir, "", &mut files).map_err(|e| ckpt_err(dir, e))?;
+    for f in &files {
+        if !m.files.contains_key(f) {
+            return Err(ckpt_err(
+                &dir.join(f),
+                "is not in the checkpoint's manifest.json",
+            ));
+        }
+    }
+    for (f, want) in &m.files {
+        let p = dir.join(f);
+        if !p.is_file() {
+            return Err(ckpt_err(&p, "missing (listed in manifest.json)"));
+        }
+        let got = file_seal(&p)?;
+        if got != *want {
+            return Err(ckpt_err(
+                &p,
+                format!(
+                    "is damaged: {} bytes with CRC-32 {:08x}, manifest.json says {} bytes with \
+                     {:08x}",
+                    got.len, got.crc32, want.len, want.crc32
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Reads a file written by [`write_bin`]; a missing, truncated or corrupt file is a
@@ -38,7 +166,7 @@ pub fn read_bin<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
         .map_err(|e| ckpt_err(path, format!("is truncated or corrupt: {e}")))
 }
 
-/// Writes `value` as pretty JSON.
+/// Writes `value` as pretty JSON; write errors are returned.
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     std::fs::write(path, serde_json::to_string_pretty(value)?).map_err(|e| ckpt_err(path, e))
 }
