@@ -598,7 +598,10 @@ fn train_rejects_bad_configs_naming_the_key() {
             .output()
             .unwrap();
         assert!(!out.status.success());
-        assert!(!tmp("no-cuda").exists(), "a failed start left its directory");
+        assert!(
+            !tmp("no-cuda").exists(),
+            "a failed start left its directory"
+        );
     }
 }
 

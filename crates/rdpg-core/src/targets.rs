@@ -177,7 +177,7 @@ pub fn critic_loss_reference(q: &[f64], targets: &[f64], weights: &[f64], mask: 
     }
     let l = weights.len();
     assert!(
-        l > 0 && q.len() % l == 0,
+        l > 0 && q.len().is_multiple_of(l),
         "critic_loss_reference: q has {} entries, not a multiple of l = {l}",
         q.len()
     );

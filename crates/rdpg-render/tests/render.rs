@@ -255,7 +255,7 @@ fn random_shapes_never_panic() {
     for _ in 0..200 {
         let coord = |next: &mut dyn FnMut() -> u32| -> f32 {
             let r = next();
-            if r % 10 == 0 {
+            if r.is_multiple_of(10) {
                 specials[(r / 10) as usize % specials.len()]
             } else {
                 (r % 20_000) as f32 / 100.0 - 50.0

@@ -253,7 +253,7 @@ impl PpoAgent {
     /// `obs` (`[n, obs_dim]` row-major) as a tensor on the agent's device.
     fn obs_tensor(&self, obs: &[f32]) -> Tensor {
         assert!(
-            obs.len() % self.obs_dim == 0,
+            obs.len().is_multiple_of(self.obs_dim),
             "{} observation values are not a multiple of obs_dim {}",
             obs.len(),
             self.obs_dim

@@ -117,7 +117,7 @@ impl RdpgAgent {
         // TD3's delayed policy update: the actor and the target networks move on every
         // `policy_delay`-th update only (every update for the paper's RDPG, delay 1).
         self.updates += 1;
-        let actor_turn = self.updates % self.cfg.policy_delay as u64 == 0;
+        let actor_turn = self.updates.is_multiple_of(self.cfg.policy_delay as u64);
         let updated_critic = self.cfg.actor_uses_updated_critic || !actor_turn;
         // Critic states h^C_{i-1} along the window for the actor loss: from the pre-update
         // critic, or (Algorithm 1 order) rescanned after its Adam step.
