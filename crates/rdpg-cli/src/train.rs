@@ -106,16 +106,67 @@ impl TrainObserver for Observer<'_> {
 /// metric files have not logged yet. Written whole into a new directory, sealed (fsync and
 /// checksums) and only then moved into place: a crash or a full disk at any moment leaves the
 /// previous checkpoint intact.
-fn save_latest(trainer: &mut dyn Trainer, run: &RunDir, log: &RunLog) -> Result<()> {
+fn save_latest(
+    trainer: &mut dyn Trainer,
+    run: &RunDir,
+    exp: &Experiment,
+    log: &RunLog,
+) -> Result<()> {
     let dst = run.checkpoint(Which::Latest);
     let tmp = run.fresh_partial(&dst)?;
     trainer.save(&tmp)?;
+    let snapshot = tmp.join("config.toml");
+    std::fs::write(&snapshot, exp.to_toml()?)
+        .with_context(|| format!("writing {}", snapshot.display()))?;
     let pending = tmp.join("pending_updates.json");
     std::fs::write(&pending, serde_json::to_string(&log.updates)?)
         .with_context(|| format!("writing {}", pending.display()))?;
     seal(&tmp.join("agent"))?;
     seal(&tmp)?;
     run.commit(&tmp, &dst)
+}
+
+/// What a resume may change in a run's `config.toml`: the budget and the checkpoint cadence.
+/// Any other edit since the checkpoint (`then`) would be ignored by the restored trainer while
+/// reports showed it as in effect, so it is refused, naming the keys.
+fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Result<()> {
+    let table = |e: &Experiment| -> Result<toml::Table> {
+        let mut t: toml::Table = toml::from_str(&e.to_toml()?)?;
+        if let Some(toml::Value::Table(train)) = t.get_mut("train") {
+            train.remove("total_steps");
+        }
+        if let Some(toml::Value::Table(run)) = t.get_mut("run") {
+            run.remove("checkpoint_every");
+        }
+        Ok(t)
+    };
+    let mut changed = Vec::new();
+    diff_keys("", &table(then)?, &table(now)?, &mut changed);
+    if !changed.is_empty() {
+        bail!(
+            "{} was edited since the last checkpoint ({}): a resumed run keeps the settings it \
+             was started with, except train.total_steps (or --steps) and run.checkpoint_every. \
+             Undo the edit, or start a new run from the edited file with --config",
+            path.display(),
+            changed.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// The dotted keys whose values differ between `a` and `b`.
+fn diff_keys(prefix: &str, a: &toml::Table, b: &toml::Table, out: &mut Vec<String>) {
+    let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    for k in keys {
+        let name = format!("{prefix}{k}");
+        match (a.get(k), b.get(k)) {
+            (Some(toml::Value::Table(x)), Some(toml::Value::Table(y))) => {
+                diff_keys(&format!("{name}."), x, y, out)
+            }
+            (x, y) if x != y => out.push(name),
+            _ => {}
+        }
+    }
 }
 
 /// Saves the agent alone (the `best` checkpoint), with the evaluation that chose it; written
@@ -160,14 +211,23 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let lock = run.lock()?;
         run.recover()?;
         let mut exp = run.experiment()?;
-        let mut trainer = rdpg_agents::load_trainer(&run.checkpoint(Which::Latest))
+        let latest = run.checkpoint(Which::Latest);
+        let mut trainer = rdpg_agents::load_trainer(&latest)
             .with_context(|| format!("resuming {}", dir.display()))?;
+        // The checkpoint's own copy of the experiment: what the trainer was built from.
+        let snapshot = latest.join("config.toml");
+        if snapshot.exists() {
+            let then = Experiment::load(&snapshot, &[])
+                .with_context(|| format!("reading {}", snapshot.display()))?;
+            check_resume_edits(&then, &exp, &run.config())?;
+        }
         if let Some(n) = a.steps {
             exp.train.total_steps = n;
             exp.validate()?;
-            trainer.set_total_steps(n);
             std::fs::write(run.config(), exp.to_toml()?)?;
         }
+        // config.toml holds the budget (set by --steps or edited): the trainer follows it.
+        trainer.set_total_steps(exp.train.total_steps);
         (run, exp, trainer, lock)
     } else {
         let path = a.config.as_ref().expect("clap requires --config");
@@ -228,7 +288,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
-            save_latest(trainer.as_mut(), &run, &log)?;
+            save_latest(trainer.as_mut(), &run, &exp, &log)?;
             log.sync()?;
             log.write_summary(&exp, trainer.steps())?;
             log.bar.abandon();
@@ -242,7 +302,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             std::process::exit(130);
         }
         if trainer.steps() >= next_ckpt {
-            save_latest(trainer.as_mut(), &run, &log)?;
+            save_latest(trainer.as_mut(), &run, &exp, &log)?;
             log.sync()?;
             next_ckpt = every(exp.run.checkpoint_every, trainer.steps());
         }
@@ -259,7 +319,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             save_best(trainer.as_ref(), &run, log.best_eval.as_ref())?;
         }
     }
-    save_latest(trainer.as_mut(), &run, &log)?;
+    save_latest(trainer.as_mut(), &run, &exp, &log)?;
     log.test_eval = Some(test_best(&run, &exp, log.best_eval.as_ref())?);
     log.sync()?;
     log.write_summary(&exp, trainer.steps())?;

@@ -739,6 +739,33 @@ fn interrupt_saves_and_the_run_resumes() {
         .arg(&dir));
     let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(summary["steps"], 3000);
+
+    // Resume edits: the budget in config.toml is followed (the trainer's own copy said 3000:
+    // this once hung), any other edit is refused naming the key.
+    let config = dir.join("config.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    let edited = text.replace("gamma = 0.95", "gamma = 0.9");
+    assert_ne!(edited, text);
+    std::fs::write(&config, &edited).unwrap();
+    let out = rdpg()
+        .args(["train", "--quiet", "--resume"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("agent.gamma") && err.contains("edited"),
+        "{err}"
+    );
+    std::fs::write(
+        &config,
+        text.replace("total_steps = 3000", "total_steps = 3200"),
+    )
+    .unwrap();
+    let out = ok(rdpg().args(["train", "--quiet", "--resume"]).arg(&dir));
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["steps"], 3200);
 }
 
 /// The paper's central claim, scanning, as a learning check (`configs/delayed-cue-rdpg.toml`):
