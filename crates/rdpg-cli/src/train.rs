@@ -126,6 +126,70 @@ fn save_latest(
     run.commit(&tmp, &dst)
 }
 
+/// A rough upper estimate of the memory a run of `exp` needs, in bytes: the replay (or PPO's
+/// rollout), the environments, and the activations of one update.
+fn memory_estimate(exp: &Experiment) -> Result<u64> {
+    let env = rdpg_envs::make_with(&exp.train.env, &exp.train.env_options())?;
+    let (obs, act) = (
+        env.observation_space().dim() as u64,
+        env.action_space().dim() as u64,
+    );
+    let envs = exp.train.num_envs as u64;
+    // A walker with its Box2D world, terrain and lidar, with room to spare.
+    let per_env = 512 * 1024;
+    let bytes = match exp.learner() {
+        rdpg_agents::Learner::OffPolicy { agent, off_policy } => {
+            let critics = if agent.twin_critic { 2 } else { 1 };
+            let state = if agent.burn_in_from_stored_state {
+                2 * (agent.actor_hidden + critics * agent.critic_hidden) as u64
+            } else {
+                0
+            };
+            let injected = off_policy
+                .injection
+                .as_ref()
+                .map_or(0.0, |i| i.max_fraction);
+            let per_step = 4 * (obs + act + 2 + state);
+            let replay = (off_policy.replay_capacity as f64 * (1.0 + injected)) as u64 * per_step;
+            let width = (agent.embed_dim() + agent.actor_hidden + agent.critic_hidden) as u64;
+            let steps = (agent.scan_len + agent.opt_len + 1) as u64;
+            // Inputs, gates and saved activations of the online and target networks.
+            let batch = agent.batch_size as u64 * steps * 4 * (obs + act + 16 * width) * 4;
+            replay + batch
+        }
+        rdpg_agents::Learner::Ppo(p) => {
+            let rollout = p.rollout_steps as u64 * envs * 4 * (obs + act + 8);
+            let width: u64 = p.hidden.iter().map(|&h| h as u64).sum();
+            rollout + p.minibatch_size as u64 * 4 * (obs + act + 8 * width) * 4
+        }
+    };
+    Ok(bytes + envs * per_env)
+}
+
+/// Refuses a run whose [`memory_estimate`] exceeds the memory this machine has available.
+fn check_memory(exp: &Experiment) -> Result<()> {
+    let need = memory_estimate(exp)?;
+    let available = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|m| {
+            let kb = m.lines().find_map(|l| l.strip_prefix("MemAvailable:"))?;
+            kb.trim().trim_end_matches("kB").trim().parse::<u64>().ok()
+        })
+        .map(|kb| kb * 1024);
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+    if let Some(avail) = available.filter(|&a| need > a) {
+        bail!(
+            "this run needs about {:.1} GiB (replay or rollout, {} environments, one update's \
+             activations) but the machine has {:.1} GiB available: lower \
+             off_policy.replay_capacity, agent.batch_size or train.num_envs",
+            gib(need),
+            exp.train.num_envs,
+            gib(avail)
+        );
+    }
+    Ok(())
+}
+
 /// What a resume may change in a run's `config.toml`: the budget and the checkpoint cadence.
 /// Any other edit since the checkpoint (`then`) would be ignored by the restored trainer while
 /// reports showed it as in effect, so it is refused, naming the keys.
@@ -248,6 +312,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             );
         }
         // The trainer first: a start that fails (e.g. no CUDA device) leaves no directory.
+        check_memory(&exp)?;
         let trainer = rdpg_agents::new_trainer(exp.train.clone(), exp.learner())?;
         std::fs::create_dir_all(run.root())
             .with_context(|| format!("creating run directory {}", run.root().display()))?;

@@ -570,6 +570,10 @@ fn train_rejects_bad_configs_naming_the_key() {
             "off_policy.exploration={kind=\"ou\",theta=-1,sigma=0.1}",
             "off_policy.exploration",
         ),
+        // Runs that cannot fit this machine are refused at once, with the estimate.
+        ("off_policy.replay_capacity=1000000000000", "GiB available"),
+        ("agent.batch_size=100000000", "agent.batch_size"),
+        ("train.num_envs=100000", "train.num_envs"),
     ] {
         let out = rdpg()
             .args(["train", "--quiet", "--config"])
