@@ -19,6 +19,11 @@ pub enum AgentError {
     /// An observation (or other input) is not finite.
     #[error("bad input: {0}")]
     Input(String),
+    /// The networks hold non-finite values: training diverged.
+    #[error(
+        "training diverged: {0} (lower the learning rates, or resume from an earlier checkpoint)"
+    )]
+    Diverged(String),
     /// The requested device cannot be used.
     #[error("device: {0}")]
     Device(String),

@@ -797,3 +797,39 @@ fn scanning_recalls_a_cue_older_than_the_window_and_zero_states_cannot() {
     assert!(with_scan >= 0.9, "with the scan: {with_scan}");
     assert!(without <= 0.3, "without the scan: {without}");
 }
+
+/// A run whose networks diverge stops with an error naming the non-finite tensor, and never
+/// replaces its last good checkpoint with the diverged state.
+#[test]
+fn a_diverging_run_stops_and_keeps_its_last_good_checkpoint() {
+    let dir = tmp("run-diverging");
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = rdpg()
+        .args(["train", "--quiet", "--steps", "2000", "--config"])
+        .arg(configs_dir().join("cue-rdpg.toml"))
+        .arg("--out")
+        .arg(&dir)
+        .args([
+            "--set",
+            "agent.critic_l2=1e30",
+            "--set",
+            "run.checkpoint_every=250",
+            "--set",
+            "train.eval_every=1000",
+            "--set",
+            "train.eval_episodes=20",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("training diverged") && err.contains("non-finite"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    let latest = dir.join("checkpoints/latest");
+    assert!(latest.join("manifest.json").exists());
+    let weights = std::fs::read(latest.join("agent/weights.safetensors")).unwrap();
+    assert!(!weights.is_empty());
+}

@@ -188,8 +188,18 @@ pub fn read_tensors(path: &Path) -> Result<HashMap<String, Tensor>> {
         .collect())
 }
 
-/// Writes named tensors (copied to the CPU) as a safetensors file.
+/// Writes named tensors (copied to the CPU) as a safetensors file. A tensor holding NaN or
+/// infinity is refused ([`AgentError::Diverged`], naming it) and nothing is written: a diverged
+/// state never replaces a good checkpoint.
 pub fn write_tensors(path: &Path, tensors: &[(String, Tensor)]) -> Result<()> {
+    for (name, t) in tensors {
+        if t.is_floating_point() && !bool::try_from(t.isfinite().all()).unwrap_or(false) {
+            return Err(AgentError::Diverged(format!(
+                "`{name}` holds non-finite values, so {} was not written",
+                path.display()
+            )));
+        }
+    }
     let cpu: Vec<(String, Tensor)> = tensors
         .iter()
         .map(|(n, t)| {

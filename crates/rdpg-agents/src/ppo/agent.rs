@@ -556,7 +556,13 @@ impl DeterministicPolicy for PpoAgent {
                 obs[k]
             )));
         }
-        Ok(self.act_deterministic(obs))
+        let a = self.act_deterministic(obs);
+        if a.iter().any(|x| !x.is_finite()) {
+            return Err(AgentError::Diverged(
+                "the policy's mean action is not finite (its weights hold NaN or inf)".into(),
+            ));
+        }
+        Ok(a)
     }
 }
 

@@ -392,7 +392,13 @@ impl RdpgAgent {
             state.state = s;
             a
         });
-        Ok(tensor_to_vec(&a))
+        let a = tensor_to_vec(&a);
+        if a.iter().any(|x| !x.is_finite()) {
+            return Err(AgentError::Diverged(
+                "the actor's action is not finite (its weights or state hold NaN or inf)".into(),
+            ));
+        }
+        Ok(a)
     }
 
     /// Number of actor parameters (the length of [`RdpgAgent::actor_params`]).
