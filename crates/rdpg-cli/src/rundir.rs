@@ -829,11 +829,14 @@ impl RunLog {
         }
     }
 
-    /// Writes `summary.json`.
+    /// Writes `summary.json` (whole: a new file renamed over the old one).
     pub fn write_summary(&self, exp: &Experiment, steps: u64) -> Result<()> {
         let s = serde_json::to_string_pretty(&self.summary(exp, steps))?;
-        std::fs::write(self.dir.summary(), s)?;
-        Ok(())
+        let path = self.dir.summary();
+        let tmp = path.with_extension("json.partial");
+        std::fs::write(&tmp, s)
+            .and_then(|_| std::fs::rename(&tmp, &path))
+            .with_context(|| format!("writing {}", path.display()))
     }
 
     /// The progress bar's message.

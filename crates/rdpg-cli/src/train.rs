@@ -288,7 +288,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if let Some(n) = a.steps {
             exp.train.total_steps = n;
             exp.validate()?;
-            std::fs::write(run.config(), exp.to_toml()?)?;
+            std::fs::write(run.config(), exp.to_toml()?)
+                .with_context(|| format!("writing {}", run.config().display()))?;
         }
         // config.toml holds the budget (set by --steps or edited): the trainer follows it.
         trainer.set_total_steps(exp.train.total_steps);
