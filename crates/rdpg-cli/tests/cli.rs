@@ -353,6 +353,39 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     };
     assert_eq!(rows(&one), rows(&two));
 
+    // kill -9 right after the first checkpoint (mid-run, mid-write of anything): resume gives
+    // the uninterrupted run's weights and metric rows.
+    let killed = tmp("run-killed");
+    let _ = std::fs::remove_dir_all(&killed);
+    let mut c = rdpg();
+    c.args(["train", "--quiet", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&killed)
+        .args(["--steps", "700"]);
+    for s in sets {
+        c.args(["--set", s]);
+    }
+    let mut child = c.spawn().unwrap();
+    let t0 = std::time::Instant::now();
+    while !killed.join("checkpoints/latest/manifest.json").exists() {
+        assert!(t0.elapsed().as_secs() < 60, "no checkpoint after a minute");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    let _ = child.wait();
+    ok(rdpg()
+        .args(["train", "--quiet", "--steps", "700", "--resume"])
+        .arg(&killed));
+    assert_eq!(
+        weights(&one),
+        weights(&killed),
+        "killed and resumed run differs"
+    );
+    assert_eq!(rows(&one), rows(&killed));
+    let (r1, r3) = (jsonl_rows(&one), jsonl_rows(&killed));
+    assert_eq!(r1, r3);
+
     // A run directory is never overwritten.
     let out = rdpg()
         .args(["train", "--quiet", "--config"])
