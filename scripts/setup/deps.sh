@@ -7,4 +7,8 @@ if [ -x "$_rdpg_scripts/setup_torch.sh" ]; then
 fi
 # shellcheck source=scripts/setup/env.sh
 source "$_rdpg_scripts/env.sh"
+# The Python package (crates/rdpg-py) in the same venv, once the build environment is set.
+if [ -x "$_rdpg_scripts/setup_python.sh" ] && [ -d "$_rdpg_scripts/../../crates/rdpg-py" ]; then
+  "$_rdpg_scripts/setup_python.sh"
+fi
 unset _rdpg_scripts

@@ -1,0 +1,480 @@
+//! `rdpg._rdpg`: the Rust side of the `rdpg` Python package.
+//!
+//! Three classes, wrapped by `python/rdpg/__init__.py` into Gymnasium's API:
+//! - [`Env`]: one registered environment (`rdpg_envs::make_with`), stepped with the GIL
+//!   released;
+//! - [`VecEnv`]: `n` environments stepped in parallel on Rust threads (GIL released), with
+//!   Gymnasium's default *next-step* autoreset;
+//! - [`Policy`]: a trained agent of a run or zoo directory, acting deterministically.
+//!
+//! Arrays cross the boundary as `bytes` of little-endian `f32` (observations, actions) or
+//! `f64` (rewards); the Python side views them with `numpy.frombuffer`, without copies of
+//! Python objects per element. Every error is a Python exception carrying the Rust message.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyBytes;
+use rdpg_agents::common::to_env_action;
+use rdpg_agents::{Algo, DeterministicPolicy, TrainConfig};
+use rdpg_envs::registry::AnyEnv;
+use rdpg_envs::{EnvOptions, Renderable, WalkerReward};
+
+fn value_err(e: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn runtime_err(e: impl std::fmt::Display) -> PyErr {
+    PyRuntimeError::new_err(e.to_string())
+}
+
+fn options(reward: &str, hide_obs: Vec<usize>) -> PyResult<EnvOptions> {
+    let reward = match reward {
+        "stock" => WalkerReward::Stock,
+        "paper" => WalkerReward::Paper,
+        other => {
+            return Err(value_err(format!(
+                "reward {other:?}: expected \"stock\" or \"paper\""
+            )))
+        }
+    };
+    Ok(EnvOptions {
+        reward,
+        hide_obs,
+        max_episode_steps: None,
+    })
+}
+
+fn make(id: &str, opts: &EnvOptions) -> PyResult<Box<dyn AnyEnv>> {
+    rdpg_envs::make_with(id, opts).map_err(|e| value_err(format!("{id}: {e}")))
+}
+
+/// `f32`s from little-endian bytes, exactly `n` of them.
+fn f32s(bytes: &[u8], n: usize, what: &str) -> PyResult<Vec<f32>> {
+    if bytes.len() != 4 * n {
+        return Err(value_err(format!(
+            "{what}: {} bytes, expected {n} float32 values ({} bytes)",
+            bytes.len(),
+            4 * n
+        )));
+    }
+    Ok(bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect())
+}
+
+fn f32_bytes<'py>(py: Python<'py>, v: &[f32]) -> Bound<'py, PyBytes> {
+    let raw: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+    PyBytes::new(py, &raw)
+}
+
+fn check_action(a: &[f32], what: &str) -> PyResult<()> {
+    match a.iter().position(|x| !x.is_finite()) {
+        Some(k) => Err(value_err(format!(
+            "{what}: component {k} is {} (actions must be finite)",
+            a[k]
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// One environment: `Env(id, reward="stock", hide_obs=[])`.
+#[pyclass(module = "rdpg._rdpg")]
+pub struct Env {
+    /// Behind a mutex only to make the class `Sync`; methods take `&mut self`.
+    env: Mutex<Box<dyn AnyEnv>>,
+}
+
+impl Env {
+    fn env(&mut self) -> &mut Box<dyn AnyEnv> {
+        self.env.get_mut().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+#[pymethods]
+impl Env {
+    #[new]
+    #[pyo3(signature = (id, reward = "stock", hide_obs = Vec::new()))]
+    fn new(id: &str, reward: &str, hide_obs: Vec<usize>) -> PyResult<Self> {
+        Ok(Self {
+            env: Mutex::new(make(id, &options(reward, hide_obs)?)?),
+        })
+    }
+
+    /// `(low, high)` of the observation space, as lists.
+    fn observation_bounds(&mut self) -> (Vec<f32>, Vec<f32>) {
+        let s = self.env().observation_space();
+        (s.low.clone(), s.high.clone())
+    }
+
+    /// `(low, high)` of the action space, as lists.
+    fn action_bounds(&mut self) -> (Vec<f32>, Vec<f32>) {
+        let s = self.env().action_space();
+        (s.low.clone(), s.high.clone())
+    }
+
+    /// Resets (with `seed`, or continuing the env's random stream): the observation bytes.
+    #[pyo3(signature = (seed = None))]
+    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyBytes>> {
+        let env = self.env();
+        let (obs, _) = py.detach(|| env.reset(seed)).map_err(runtime_err)?;
+        Ok(f32_bytes(py, &obs))
+    }
+
+    /// Steps with an action (float32 bytes): `(obs bytes, reward, terminated, truncated,
+    /// success, stock_reward)`.
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        action: &[u8],
+    ) -> PyResult<(Bound<'py, PyBytes>, f64, bool, bool, bool, Option<f64>)> {
+        let env = self.env();
+        let a = f32s(action, env.action_space().dim(), "action")?;
+        check_action(&a, "action")?;
+        let s = py.detach(|| env.step(&a)).map_err(runtime_err)?;
+        Ok((
+            f32_bytes(py, &s.obs),
+            s.reward,
+            s.terminated,
+            s.truncated,
+            s.info.success,
+            s.info.stock_reward,
+        ))
+    }
+
+    /// The current frame: `(rgb bytes, height, width)`.
+    fn render<'py>(&mut self, py: Python<'py>) -> (Bound<'py, PyBytes>, u32, u32) {
+        let scene = self.env().scene();
+        let frame = py.detach(|| rdpg_render::rasterize(&scene));
+        (PyBytes::new(py, &frame.rgb), frame.height, frame.width)
+    }
+}
+
+/// `n` environments stepped in parallel on Rust threads, with next-step autoreset:
+/// `VecEnv(id, num_envs, reward="stock", hide_obs=[], threads=None)`.
+///
+/// Autoreset follows Gymnasium's default (`AutoresetMode.NEXT_STEP`): the step that ends an
+/// episode returns its last observation; the next step of that env ignores its action, resets
+/// it (continuing its random stream) and returns the first observation with reward 0 and both
+/// flags false. `reset(seed)` seeds env `i` with `seed + i`.
+#[pyclass(module = "rdpg._rdpg")]
+pub struct VecEnv {
+    /// Behind a mutex only to make the class `Sync`; methods take `&mut self`.
+    envs: Mutex<Vec<Box<dyn AnyEnv>>>,
+    needs_reset: Vec<bool>,
+    threads: usize,
+    obs_dim: usize,
+    act_dim: usize,
+}
+
+/// One env's result of a vector step.
+struct Out {
+    obs: Vec<f32>,
+    reward: f64,
+    terminated: bool,
+    truncated: bool,
+}
+
+#[pymethods]
+impl VecEnv {
+    #[new]
+    #[pyo3(signature = (id, num_envs, reward = "stock", hide_obs = Vec::new(), threads = None))]
+    fn new(
+        id: &str,
+        num_envs: usize,
+        reward: &str,
+        hide_obs: Vec<usize>,
+        threads: Option<usize>,
+    ) -> PyResult<Self> {
+        if num_envs == 0 {
+            return Err(value_err("num_envs must be at least 1"));
+        }
+        let opts = options(reward, hide_obs)?;
+        let envs = (0..num_envs)
+            .map(|_| make(id, &opts))
+            .collect::<PyResult<Vec<_>>>()?;
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let threads = threads.unwrap_or(cores).clamp(1, num_envs);
+        Ok(Self {
+            obs_dim: envs[0].observation_space().dim(),
+            act_dim: envs[0].action_space().dim(),
+            needs_reset: vec![false; num_envs],
+            envs: Mutex::new(envs),
+            threads,
+        })
+    }
+
+    /// `(obs_dim, act_dim)`.
+    fn dims(&self) -> (usize, usize) {
+        (self.obs_dim, self.act_dim)
+    }
+
+    /// Resets every env (env `i` with `seed + i` when a seed is given): `[n, obs_dim]` bytes.
+    #[pyo3(signature = (seed = None))]
+    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyBytes>> {
+        let threads = self.threads;
+        let envs = self.envs.get_mut().unwrap_or_else(|p| p.into_inner());
+        let obs = py
+            .detach(|| {
+                parallel(envs, threads, |i, env| {
+                    env.reset(seed.map(|s| s + i as u64)).map(|(o, _)| o)
+                })
+            })
+            .map_err(runtime_err)?;
+        self.needs_reset.iter_mut().for_each(|r| *r = false);
+        Ok(f32_bytes(py, &obs.concat()))
+    }
+
+    /// Steps every env with its row of `actions` (`[n, act_dim]` float32 bytes): `(obs
+    /// [n, obs_dim] float32, rewards [n] float64, terminated [n] bool, truncated [n] bool)`,
+    /// all as bytes.
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        actions: &[u8],
+    ) -> PyResult<(
+        Bound<'py, PyBytes>,
+        Bound<'py, PyBytes>,
+        Bound<'py, PyBytes>,
+        Bound<'py, PyBytes>,
+    )> {
+        let n = self.needs_reset.len();
+        let a = f32s(actions, n * self.act_dim, "actions")?;
+        check_action(&a, "actions")?;
+        let (threads, act_dim) = (self.threads, self.act_dim);
+        let envs = self.envs.get_mut().unwrap_or_else(|p| p.into_inner());
+        let resets = self.needs_reset.clone();
+        let outs = py
+            .detach(|| {
+                parallel(envs, threads, |i, env| {
+                    if resets[i] {
+                        let (obs, _) = env.reset(None)?;
+                        return Ok(Out {
+                            obs,
+                            reward: 0.0,
+                            terminated: false,
+                            truncated: false,
+                        });
+                    }
+                    let s = env.step(&a[i * act_dim..(i + 1) * act_dim])?;
+                    Ok(Out {
+                        obs: s.obs,
+                        reward: s.reward,
+                        terminated: s.terminated,
+                        truncated: s.truncated,
+                    })
+                })
+            })
+            .map_err(runtime_err)?;
+        for (r, o) in self.needs_reset.iter_mut().zip(&outs) {
+            *r = o.terminated || o.truncated;
+        }
+        let obs: Vec<f32> = outs.iter().flat_map(|o| o.obs.iter().copied()).collect();
+        let rewards: Vec<u8> = outs.iter().flat_map(|o| o.reward.to_le_bytes()).collect();
+        let term: Vec<u8> = outs.iter().map(|o| o.terminated as u8).collect();
+        let trunc: Vec<u8> = outs.iter().map(|o| o.truncated as u8).collect();
+        Ok((
+            f32_bytes(py, &obs),
+            PyBytes::new(py, &rewards),
+            PyBytes::new(py, &term),
+            PyBytes::new(py, &trunc),
+        ))
+    }
+}
+
+/// Runs `f(i, env)` for every env, the envs split into `threads` contiguous chunks (one
+/// scoped thread per chunk beyond the first, which runs here); results in env order, the first
+/// error wins.
+fn parallel<T: Send>(
+    envs: &mut [Box<dyn AnyEnv>],
+    threads: usize,
+    f: impl Fn(usize, &mut Box<dyn AnyEnv>) -> Result<T, rdpg_core::EnvError> + Sync,
+) -> Result<Vec<T>, rdpg_core::EnvError> {
+    let chunk = envs.len().div_ceil(threads.max(1));
+    let run = |start: usize, part: &mut [Box<dyn AnyEnv>]| -> Result<Vec<T>, _> {
+        part.iter_mut()
+            .enumerate()
+            .map(|(k, e)| f(start + k, e))
+            .collect()
+    };
+    let mut parts: Vec<(usize, &mut [Box<dyn AnyEnv>])> = envs
+        .chunks_mut(chunk)
+        .enumerate()
+        .map(|(c, p)| (c * chunk, p))
+        .collect();
+    let (first_start, first) = parts.remove(0);
+    std::thread::scope(|s| {
+        let handles: Vec<_> = parts
+            .into_iter()
+            .map(|(start, p)| s.spawn(move || run(start, p)))
+            .collect();
+        let mut out = run(first_start, first)?;
+        for h in handles {
+            out.extend(h.join().expect("an env thread panicked")?);
+        }
+        Ok(out)
+    })
+}
+
+/// A trained agent of a run or zoo directory, acting deterministically on full observations
+/// of its environment (a run trained with hidden observation components drops them itself):
+/// `Policy(path)`.
+#[pyclass(module = "rdpg._rdpg", unsendable)]
+pub struct Policy {
+    dir: PathBuf,
+    algo: Algo,
+    train: TrainConfig,
+    /// One copy per environment of the batched form (each keeps its own recurrent state).
+    copies: Vec<Box<dyn DeterministicPolicy>>,
+    obs_dim: usize,
+    act_low: Vec<f32>,
+    act_high: Vec<f32>,
+}
+
+impl Policy {
+    fn agent_dir(&self) -> PathBuf {
+        agent_dir(&self.dir)
+    }
+
+    fn keep(&self, obs: &[f32]) -> Vec<f32> {
+        obs.iter()
+            .enumerate()
+            .filter(|(i, _)| !self.train.hide_obs.contains(i))
+            .map(|(_, &x)| x)
+            .collect()
+    }
+
+    fn ensure_copies(&mut self, n: usize) -> PyResult<()> {
+        while self.copies.len() < n {
+            let p = rdpg_agents::load_policy(self.algo, &self.agent_dir()).map_err(value_err)?;
+            self.copies.push(p);
+        }
+        Ok(())
+    }
+}
+
+/// The agent directory of a run (`checkpoints/best/agent`) or zoo entry (`agent/`).
+fn agent_dir(dir: &Path) -> PathBuf {
+    let zoo = dir.join("agent");
+    if zoo.join("agent.json").exists() {
+        zoo
+    } else {
+        dir.join("checkpoints").join("best").join("agent")
+    }
+}
+
+#[pymethods]
+impl Policy {
+    #[new]
+    fn new(path: PathBuf) -> PyResult<Self> {
+        let config = path.join("config.toml");
+        let text = std::fs::read_to_string(&config).map_err(|e| {
+            value_err(format!(
+                "{}: not a run or zoo directory ({}: {e})",
+                path.display(),
+                config.display()
+            ))
+        })?;
+        let bad = |e: &dyn std::fmt::Display| value_err(format!("{}: {e}", config.display()));
+        let table: toml::Table = toml::from_str(&text).map_err(|e| bad(&e))?;
+        let algo: Algo = table
+            .get("algo")
+            .cloned()
+            .ok_or_else(|| bad(&"no `algo`"))?
+            .try_into()
+            .map_err(|e| bad(&e))?;
+        let train: TrainConfig = table
+            .get("train")
+            .cloned()
+            .ok_or_else(|| bad(&"no [train] section"))?
+            .try_into()
+            .map_err(|e| bad(&e))?;
+        let env = make(&train.env, &EnvOptions::default())?;
+        let mut p = Self {
+            obs_dim: env.observation_space().dim(),
+            act_low: env.action_space().low.clone(),
+            act_high: env.action_space().high.clone(),
+            dir: path,
+            algo,
+            train,
+            copies: Vec::new(),
+        };
+        p.ensure_copies(1)?;
+        Ok(p)
+    }
+
+    /// The environment id the agent was trained on.
+    #[getter]
+    fn env_id(&self) -> String {
+        self.train.env.clone()
+    }
+
+    /// The algorithm (`rdpg`, `ddpg`, `ppo`).
+    #[getter]
+    fn algo(&self) -> &'static str {
+        self.algo.as_str()
+    }
+
+    /// Starts new episodes: zeroes every recurrent state.
+    fn reset(&mut self) {
+        for c in &mut self.copies {
+            c.begin_episode();
+        }
+    }
+
+    /// The action (float32 bytes, within the env's bounds) for one observation.
+    fn act<'py>(&mut self, py: Python<'py>, obs: &[u8]) -> PyResult<Bound<'py, PyBytes>> {
+        let o = self.keep(&f32s(obs, self.obs_dim, "observation")?);
+        let a = self.copies[0].act(&o).map_err(value_err)?;
+        Ok(f32_bytes(
+            py,
+            &to_env_action(&a, &self.act_low, &self.act_high),
+        ))
+    }
+
+    /// Actions for `n` environments (`[n, obs_dim]` float32 bytes), each with its own state.
+    fn act_batch<'py>(
+        &mut self,
+        py: Python<'py>,
+        obs: &[u8],
+        n: usize,
+    ) -> PyResult<Bound<'py, PyBytes>> {
+        let all = f32s(obs, n * self.obs_dim, "observations")?;
+        self.ensure_copies(n)?;
+        let mut out = Vec::with_capacity(n * self.act_low.len());
+        for (i, row) in all.chunks_exact(self.obs_dim).enumerate() {
+            let o = self.keep(row);
+            let a = self.copies[i].act(&o).map_err(value_err)?;
+            out.extend(to_env_action(&a, &self.act_low, &self.act_high));
+        }
+        Ok(f32_bytes(py, &out))
+    }
+
+    /// Zeroes the recurrent state of environment `i` of the batched form (its episode ended).
+    fn reset_one(&mut self, i: usize) -> PyResult<()> {
+        self.ensure_copies(i + 1)?;
+        self.copies[i].begin_episode();
+        Ok(())
+    }
+}
+
+/// The environment ids this build provides.
+#[pyfunction]
+fn env_ids() -> Vec<&'static str> {
+    rdpg_envs::ENV_IDS.to_vec()
+}
+
+/// The Python module.
+#[pymodule]
+fn _rdpg(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Env>()?;
+    m.add_class::<VecEnv>()?;
+    m.add_class::<Policy>()?;
+    m.add_function(wrap_pyfunction!(env_ids, m)?)?;
+    Ok(())
+}

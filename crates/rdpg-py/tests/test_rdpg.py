@@ -1,0 +1,208 @@
+"""The rdpg Python package against Gymnasium 1.4.0 (run by scripts/test.sh with pytest).
+
+Parity is exact: the same seeds and float32 actions give Gymnasium's observations, rewards,
+`terminated` and `truncated` bit for bit, over whole episodes, in fresh and reused envs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import rdpg
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _episode_actions(rng: np.random.Generator, n: int, calm: bool) -> np.ndarray:
+    # Calm actions keep a walker up until the time limit (truncation); wild ones make it fall.
+    scale = 0.05 if calm else 1.0
+    return (rng.uniform(-1, 1, (n, 4)) * scale).astype(np.float32)
+
+
+def _same_episode(a: gym.Env, b: gym.Env, seed: int | None, actions: np.ndarray) -> str:
+    oa, _ = a.reset(seed=seed)
+    ob, _ = b.reset(seed=seed)
+    assert oa.dtype == ob.dtype == np.float32
+    assert np.array_equal(oa, ob)
+    for k, act in enumerate(actions):
+        ra, rb = a.step(act), b.step(act)
+        assert np.array_equal(ra[0], rb[0]), f"obs at step {k}"
+        assert ra[1] == rb[1], f"reward at step {k}"
+        assert (ra[2], ra[3]) == (rb[2], rb[3]), f"flags at step {k}"
+        if ra[2] or ra[3]:
+            return "terminated" if ra[2] else "truncated"
+    raise AssertionError("the episode did not end")
+
+
+@pytest.mark.parametrize("env_id", ["BipedalWalker-v3", "BipedalWalkerHardcore-v3"])
+def test_walkers_equal_gymnasium_over_whole_episodes_fresh_and_reused(env_id):
+    ours, theirs = gym.make(f"rdpg/{env_id}"), gym.make(env_id)
+    rng = np.random.default_rng(7)
+    steps = 2000 if "Hardcore" in env_id else 1600
+    endings = []
+    # Fresh envs' first episodes, then the same envs reused: seeded resets, and a reset
+    # without a seed that continues each env's random stream.
+    for seed, calm in [(11, False), (12, True), (None, False), (13, False)]:
+        endings.append(_same_episode(ours, theirs, seed, _episode_actions(rng, steps, calm)))
+    assert "terminated" in endings
+    if "Hardcore" not in env_id:
+        assert "truncated" in endings, "the time limit was not reached"
+
+
+def test_every_id_passes_gymnasium_check_env():
+    for env_id in rdpg.ENV_IDS:
+        env = gym.make(f"rdpg/{env_id}")
+        check_env(env.unwrapped, skip_render_check=True)
+        assert env.spec.max_episode_steps == rdpg.ENV_IDS[env_id]
+
+
+def test_options_and_rendering():
+    env = gym.make("rdpg/BipedalWalker-v3", reward="paper", hide_obs=[1, 2, 3])
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (21,)
+    _, _, _, _, info = env.step(np.zeros(4, np.float32))
+    assert "stock_reward" in info
+    env = gym.make("rdpg/BipedalWalker-v3", render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (400, 600, 3) and frame.dtype == np.uint8 and frame.std() > 0
+
+
+def test_vector_env_equals_gymnasium_sync_vector_env_with_next_step_autoreset():
+    n = 3
+    ours = gym.make_vec("rdpg/BipedalWalker-v3", num_envs=n, vectorization_mode="vector_entry_point")
+    theirs = gym.vector.SyncVectorEnv([lambda: gym.make("BipedalWalker-v3") for _ in range(n)])
+    assert ours.metadata["autoreset_mode"] == theirs.metadata["autoreset_mode"]
+    assert ours.single_observation_space == theirs.single_observation_space
+    oa, _ = ours.reset(seed=40)
+    ob, _ = theirs.reset(seed=40)
+    assert np.array_equal(oa, ob)
+    rng = np.random.default_rng(1)
+    ended = 0
+    for k in range(300):
+        act = rng.uniform(-1, 1, (n, 4)).astype(np.float32)
+        ra, rb = ours.step(act), theirs.step(act)
+        for i in range(4):
+            assert np.array_equal(ra[i], rb[i]), f"field {i} at step {k}"
+        ended += int(ra[2].sum() + ra[3].sum())
+    assert ended >= 2, "the autoreset path was not exercised"
+
+
+def test_bad_input_raises_with_the_rust_message():
+    with pytest.raises(ValueError, match="Nope-v0"):
+        rdpg.RdpgEnv("Nope-v0")
+    env = gym.make("rdpg/BipedalWalker-v3")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(3, np.float32))
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([0, np.nan, 0, 0], np.float32))
+    with pytest.raises(TypeError):
+        env.step(np.array(["a", "b", "c", "d"]))
+    with pytest.raises(ValueError, match="reward"):
+        rdpg.RdpgEnv("BipedalWalker-v3", reward="bonus")
+    vec = rdpg.make_vec("BipedalWalker-v3", 2)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match="shape"):
+        vec.step(np.zeros((3, 4), np.float32))
+    with pytest.raises(ValueError, match="not a run or zoo directory"):
+        rdpg.Policy.load("/nonexistent/run")
+
+
+def _rdpg_binary() -> Path:
+    found = [ROOT / "target" / p / "rdpg" for p in ("release", "debug")]
+    found = [p for p in found if p.exists()]
+    if not found:
+        pytest.fail("no rdpg binary: build it first (cargo build)")
+    return max(found, key=lambda p: p.stat().st_mtime)
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory) -> Path:
+    """A tiny recurrent run on the cue task, trained by the rdpg binary."""
+    out = tmp_path_factory.mktemp("runs") / "cue"
+    subprocess.run(
+        [str(_rdpg_binary()), "train", "--quiet", "--config", str(ROOT / "configs/cue-rdpg.toml"),
+         "--out", str(out), "--steps", "1500", "--set", "train.eval_every=500",
+         "--set", "train.eval_episodes=10", "--set", "train.test_episodes=10"],
+        check=True, capture_output=True,
+    )
+    return out
+
+
+def _policy_dirs(trained_run: Path) -> list[Path]:
+    zoo = ROOT / "zoo"
+    entries = sorted(p for p in zoo.iterdir() if (p / "agent").is_dir()) if zoo.is_dir() else []
+    return [trained_run] + entries
+
+
+def test_a_policy_in_a_plain_gymnasium_loop_scores_what_rdpg_eval_reports(trained_run):
+    for run in _policy_dirs(trained_run):
+        policy = rdpg.Policy.load(run)
+        episodes, seed = 3, 3_000_000
+        out = subprocess.run(
+            [str(_rdpg_binary()), "eval", "--run", str(run), "--episodes", str(episodes)],
+            check=True, capture_output=True, text=True,
+        )
+        want = json.loads(out.stdout)["returns"]
+        env = gym.make(f"rdpg/{policy.env_id}")
+        got = []
+        for k in range(episodes):
+            obs, _ = env.reset(seed=seed + k)
+            policy.reset()
+            ret, done = 0.0, False
+            while not done:
+                obs, r, term, trunc, _ = env.step(policy.act(obs))
+                ret += r
+                done = term or trunc
+            got.append(ret)
+        assert got == want, run
+
+
+def test_batched_policy_acts_like_one_policy_per_env(trained_run):
+    policy = rdpg.Policy.load(trained_run)
+    single = rdpg.Policy.load(trained_run)
+    vec = rdpg.make_vec(policy.env_id, 2)
+    obs, _ = vec.reset(seed=5)
+    policy.reset()
+    for _ in range(4):
+        a = policy.act_batch(obs)
+        single.reset()
+        assert a.shape == (2,) + policy.action_space.shape
+        obs, *_ = vec.step(a)
+    # Each row keeps its own recurrent state: row 0 equals a lone policy fed env 0 only.
+    env = gym.make(f"rdpg/{policy.env_id}")
+    o, _ = env.reset(seed=5)
+    policy.reset()
+    single.reset()
+    vec.reset(seed=5)
+    ob, _ = vec.reset(seed=5)
+    for _ in range(4):
+        ab = policy.act_batch(ob)
+        a0 = single.act(o)
+        assert np.array_equal(ab[0], a0)
+        ob, *_ = vec.step(ab)
+        o, *_ = env.step(a0)
+
+
+def test_a_damaged_policy_directory_is_refused(trained_run, tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(trained_run, bad)
+    w = bad / "checkpoints" / "best" / "agent" / "weights.safetensors"
+    data = bytearray(w.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    w.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="damaged"):
+        rdpg.Policy.load(bad)
+    os.remove(bad / "config.toml")
+    with pytest.raises(ValueError, match="not a run or zoo directory"):
+        rdpg.Policy.load(bad)
