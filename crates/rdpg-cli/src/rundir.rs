@@ -376,6 +376,9 @@ pub struct UpdateMeans {
     pub q_mean: Option<f64>,
     /// Mean share of each batch drawn from injected (teacher) episodes.
     pub injected_share: Option<f64>,
+    /// Mean wall-clock milliseconds per update (speed; differs between identical runs).
+    #[serde(default)]
+    pub update_ms: Option<f64>,
 }
 
 /// Sums of update statistics, turned into [`UpdateMeans`] at each metric row. The sums
@@ -388,6 +391,8 @@ pub struct UpdateSums {
     actor: f64,
     q: f64,
     injected: f64,
+    #[serde(default)]
+    seconds: f64,
 }
 
 impl UpdateSums {
@@ -397,6 +402,7 @@ impl UpdateSums {
         self.critic += s.critic_loss;
         self.q += s.q_mean;
         self.injected += s.injected_share;
+        self.seconds += s.seconds;
         if let Some(a) = s.actor_loss {
             self.n_actor += 1;
             self.actor += a;
@@ -413,6 +419,7 @@ impl UpdateSums {
             actor_loss: mean(s.actor, s.n_actor),
             q_mean: mean(s.q, s.n),
             injected_share: mean(s.injected, s.n),
+            update_ms: mean(1000.0 * s.seconds, s.n),
         }
     }
 }
@@ -554,7 +561,7 @@ pub struct RunLog {
 }
 
 const EPISODES_HEADER: &str = "step,return,stock_return,len,success,r100,updates,critic_loss,\
-                               actor_loss,q_mean,injected_share,wall\n";
+                               actor_loss,q_mean,injected_share,update_ms,wall\n";
 const EVALS_HEADER: &str = "step,mean_return,std_return,success_rate,wall\n";
 
 impl RunLog {
@@ -734,14 +741,15 @@ impl RunLog {
             } => {
                 let opt = |x: Option<f64>| x.map_or(String::new(), |r| r.to_string());
                 let row = format!(
-                    "{step},{ret},{stock_return},{len},{},{},{},{},{},{},{},{wall:.3}\n",
+                    "{step},{ret},{stock_return},{len},{},{},{},{},{},{},{},{},{wall:.3}\n",
                     *success as u8,
                     opt(*r100),
                     u.updates,
                     opt(u.critic_loss),
                     opt(u.actor_loss),
                     opt(u.q_mean),
-                    opt(u.injected_share)
+                    opt(u.injected_share),
+                    opt(u.update_ms)
                 );
                 self.episodes_csv
                     .write_all(row.as_bytes())
@@ -782,6 +790,7 @@ impl RunLog {
                 v.extend(u.actor_loss.map(|x| ("learner/actor_loss", x)));
                 v.extend(u.q_mean.map(|x| ("learner/q_mean", x)));
                 v.extend(u.injected_share.map(|x| ("learner/injected_share", x)));
+                v.extend(u.update_ms.map(|x| ("learner/update_ms", x)));
                 v
             }
             Metric::Eval {

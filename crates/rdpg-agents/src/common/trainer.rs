@@ -26,6 +26,9 @@ pub struct UpdateStats {
     /// Share of the batch's windows drawn from injected (teacher) episodes (0 without
     /// injection and for on-policy learners).
     pub injected_share: f64,
+    /// Wall-clock seconds the update took (speed monitoring; the only field that differs
+    /// between identical runs).
+    pub seconds: f64,
 }
 
 /// A finished training episode.

@@ -86,6 +86,8 @@ pub struct PpoStats {
     pub next_kl_coef: f64,
     /// Minibatch steps taken.
     pub minibatches: usize,
+    /// Wall-clock seconds of the phase.
+    pub seconds: f64,
 }
 
 impl From<PpoStats> for UpdateStats {
@@ -97,6 +99,7 @@ impl From<PpoStats> for UpdateStats {
             actor_loss: Some(s.policy_loss),
             q_mean: s.value_mean,
             injected_share: 0.0,
+            seconds: s.seconds,
         }
     }
 }
@@ -342,6 +345,7 @@ impl PpoAgent {
     pub fn update(&mut self, batch: &PpoBatch, rng: &mut NpRng) -> Result<PpoStats> {
         // The advantages are GAE estimates (Schulman et al. 2016 Eq. 16; PPO paper Eqs. 11-12),
         // computed by [`gae`] with the value network of theta_old.
+        let started = std::time::Instant::now();
         crate::common::tensor::set_flush_denormal(true);
         self.check_batch(batch)?;
         let c = self.cfg.clone();
@@ -454,6 +458,7 @@ impl PpoAgent {
             kl_coef: beta,
             next_kl_coef: next,
             minibatches,
+            seconds: started.elapsed().as_secs_f64(),
         })
     }
 

@@ -94,6 +94,7 @@ impl RdpgAgent {
         if self.cfg.flush_denormal {
             crate::common::tensor::set_flush_denormal(true);
         }
+        let started = std::time::Instant::now();
         let mut clock = Clock::new(self.profile.is_some());
         let p = self.prepare(batch);
         clock.lap(|t| &mut t.prepare);
@@ -180,6 +181,7 @@ impl RdpgAgent {
             q_mean: q_mean.double_value(&[]),
             injected_share: batch.injected.iter().map(|&x| f64::from(x)).sum::<f64>()
                 / batch.n as f64,
+            seconds: started.elapsed().as_secs_f64(),
         };
         clock.lap(|t| &mut t.other);
         if let Some(pt) = &mut self.profile {
