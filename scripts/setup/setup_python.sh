@@ -12,5 +12,5 @@ venv="${RDPG_VENV:-$root/.venv}"
 "$venv/bin/python3" -m pip install --quiet -r "$root/scripts/setup/requirements_python.txt"
 VIRTUAL_ENV="$venv" PYO3_PYTHON="$venv/bin/python3" \
   "$venv/bin/maturin" develop --quiet --release -m "$root/crates/rdpg-py/Cargo.toml" 2>&1 \
-  | grep -v -e "patchelf" -e "^📦" -e "^✏️" -e "^🛠" || true
+  | grep -v -e "patchelf" -e "^📦" -e "^✏️" -e "^🛠" -e "Requirement already satisfied" || true
 "$venv/bin/python3" -c "import rdpg, gymnasium; print('rdpg python package ready in $venv')"

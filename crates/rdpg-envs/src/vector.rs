@@ -39,7 +39,8 @@ pub struct VecStep {
 enum Cmd {
     Reset(Option<u64>),
     ResetScheduled(u64, Vec<u64>),
-    Step(Vec<Vec<f32>>),
+    /// One action per env; `None` leaves that env untouched.
+    Step(Vec<Option<Vec<f32>>>),
     Restore(usize, u64, Vec<Vec<f32>>),
 }
 
@@ -249,6 +250,15 @@ impl VecEnv {
 
     /// Steps every environment with its action (`actions.len() == num_envs`).
     pub fn step(&mut self, actions: &[Vec<f32>]) -> Result<Vec<VecStep>, EnvError> {
+        let some: Vec<Option<Vec<f32>>> = actions.iter().cloned().map(Some).collect();
+        self.step_some(&some)
+    }
+
+    /// Steps the environments whose action is given and leaves the others untouched: their
+    /// result is an empty placeholder (no observation, reward 0, both flags false). This is
+    /// what Gymnasium's next-step autoreset needs (the step after an episode's end is not
+    /// taken in that environment).
+    pub fn step_some(&mut self, actions: &[Option<Vec<f32>>]) -> Result<Vec<VecStep>, EnvError> {
         if actions.len() != self.num_envs {
             return Err(EnvError::Config(format!(
                 "{} actions for {} envs",
@@ -382,6 +392,9 @@ impl Shard {
                 .zip(actions)
                 .enumerate()
                 .map(|(i, (env, a))| {
+                    let Some(a) = a else {
+                        return Ok(fresh(Vec::new(), EnvInfo::default()));
+                    };
                     let s = env.step(&a)?;
                     let done = s.done();
                     let mut out = VecStep {

@@ -3,8 +3,8 @@
 //! Three classes, wrapped by `python/rdpg/__init__.py` into Gymnasium's API:
 //! - [`Env`]: one registered environment (`rdpg_envs::make_with`), stepped with the GIL
 //!   released;
-//! - [`VecEnv`]: `n` environments stepped in parallel on Rust threads (GIL released), with
-//!   Gymnasium's default *next-step* autoreset;
+//! - [`VecEnv`]: `n` environments stepped in parallel on persistent Rust worker threads (GIL
+//!   released), with Gymnasium's default *next-step* autoreset;
 //! - [`Policy`]: a trained agent of a run or zoo directory, acting deterministically.
 //!
 //! Arrays cross the boundary as `bytes` of little-endian `f32` (observations, actions) or
@@ -157,26 +157,21 @@ impl Env {
 /// `n` environments stepped in parallel on Rust threads, with next-step autoreset:
 /// `VecEnv(id, num_envs, reward="stock", hide_obs=[], threads=None)`.
 ///
-/// Autoreset follows Gymnasium's default (`AutoresetMode.NEXT_STEP`): the step that ends an
-/// episode returns its last observation; the next step of that env ignores its action, resets
-/// it (continuing its random stream) and returns the first observation with reward 0 and both
-/// flags false. `reset(seed)` seeds env `i` with `seed + i`.
+/// The environments live on `threads` persistent workers (`rdpg_envs::VecEnv`, at most one per
+/// env; default: one per core). Autoreset follows Gymnasium's default
+/// (`AutoresetMode.NEXT_STEP`): the step that ends an episode returns its last observation; the
+/// next step of that env ignores its action and returns the first observation of a new episode
+/// (the reset, without a seed, continues the env's random stream) with reward 0 and both flags
+/// false. `reset(seed)` seeds env `i` with `seed + i`.
 #[pyclass(module = "rdpg._rdpg")]
 pub struct VecEnv {
     /// Behind a mutex only to make the class `Sync`; methods take `&mut self`.
-    envs: Mutex<Vec<Box<dyn AnyEnv>>>,
-    needs_reset: Vec<bool>,
-    threads: usize,
+    inner: Mutex<rdpg_envs::VecEnv>,
+    /// The first observation of the next episode of each env whose episode ended on the
+    /// previous step (handed out, instead of stepping it, on the next step).
+    pending_reset: Vec<Option<Vec<f32>>>,
     obs_dim: usize,
     act_dim: usize,
-}
-
-/// One env's result of a vector step.
-struct Out {
-    obs: Vec<f32>,
-    reward: f64,
-    terminated: bool,
-    truncated: bool,
 }
 
 #[pymethods]
@@ -193,18 +188,15 @@ impl VecEnv {
         if num_envs == 0 {
             return Err(value_err("num_envs must be at least 1"));
         }
-        let opts = options(reward, hide_obs)?;
-        let envs = (0..num_envs)
-            .map(|_| make(id, &opts))
-            .collect::<PyResult<Vec<_>>>()?;
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let threads = threads.unwrap_or(cores).clamp(1, num_envs);
+        let workers = threads.unwrap_or(cores).clamp(1, num_envs);
+        let inner = rdpg_envs::VecEnv::make(id, &options(reward, hide_obs)?, num_envs, workers)
+            .map_err(|e| value_err(format!("{id}: {e}")))?;
         Ok(Self {
-            obs_dim: envs[0].observation_space().dim(),
-            act_dim: envs[0].action_space().dim(),
-            needs_reset: vec![false; num_envs],
-            envs: Mutex::new(envs),
-            threads,
+            obs_dim: inner.obs_dim(),
+            act_dim: inner.act_dim(),
+            pending_reset: vec![None; num_envs],
+            inner: Mutex::new(inner),
         })
     }
 
@@ -216,16 +208,9 @@ impl VecEnv {
     /// Resets every env (env `i` with `seed + i` when a seed is given): `[n, obs_dim]` bytes.
     #[pyo3(signature = (seed = None))]
     fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyBytes>> {
-        let threads = self.threads;
-        let envs = self.envs.get_mut().unwrap_or_else(|p| p.into_inner());
-        let obs = py
-            .detach(|| {
-                parallel(envs, threads, |i, env| {
-                    env.reset(seed.map(|s| s + i as u64)).map(|(o, _)| o)
-                })
-            })
-            .map_err(runtime_err)?;
-        self.needs_reset.iter_mut().for_each(|r| *r = false);
+        let inner = self.inner.get_mut().unwrap_or_else(|p| p.into_inner());
+        let obs = py.detach(|| inner.reset(seed)).map_err(runtime_err)?;
+        self.pending_reset.iter_mut().for_each(|p| *p = None);
         Ok(f32_bytes(py, &obs.concat()))
     }
 
@@ -243,41 +228,38 @@ impl VecEnv {
         Bound<'py, PyBytes>,
         Bound<'py, PyBytes>,
     )> {
-        let n = self.needs_reset.len();
+        let n = self.pending_reset.len();
         let a = f32s(actions, n * self.act_dim, "actions")?;
         check_action(&a, "actions")?;
-        let (threads, act_dim) = (self.threads, self.act_dim);
-        let envs = self.envs.get_mut().unwrap_or_else(|p| p.into_inner());
-        let resets = self.needs_reset.clone();
-        let outs = py
-            .detach(|| {
-                parallel(envs, threads, |i, env| {
-                    if resets[i] {
-                        let (obs, _) = env.reset(None)?;
-                        return Ok(Out {
-                            obs,
-                            reward: 0.0,
-                            terminated: false,
-                            truncated: false,
-                        });
-                    }
-                    let s = env.step(&a[i * act_dim..(i + 1) * act_dim])?;
-                    Ok(Out {
-                        obs: s.obs,
-                        reward: s.reward,
-                        terminated: s.terminated,
-                        truncated: s.truncated,
-                    })
-                })
-            })
-            .map_err(runtime_err)?;
-        for (r, o) in self.needs_reset.iter_mut().zip(&outs) {
-            *r = o.terminated || o.truncated;
+        let some: Vec<Option<Vec<f32>>> = a
+            .chunks_exact(self.act_dim)
+            .zip(&self.pending_reset)
+            .map(|(row, pending)| pending.is_none().then(|| row.to_vec()))
+            .collect();
+        let inner = self.inner.get_mut().unwrap_or_else(|p| p.into_inner());
+        let steps = py.detach(|| inner.step_some(&some)).map_err(runtime_err)?;
+        let mut obs = Vec::with_capacity(n * self.obs_dim);
+        let (mut rewards, mut term, mut trunc) = (Vec::new(), Vec::new(), Vec::new());
+        for (s, pending) in steps.into_iter().zip(&mut self.pending_reset) {
+            if let Some(first) = pending.take() {
+                // The step after an episode's end: the new episode's first observation.
+                obs.extend(first);
+                rewards.extend(0f64.to_le_bytes());
+                term.push(0);
+                trunc.push(0);
+                continue;
+            }
+            match s.final_obs {
+                Some(last) => {
+                    obs.extend(last);
+                    *pending = Some(s.obs);
+                }
+                None => obs.extend(s.obs),
+            }
+            rewards.extend(s.reward.to_le_bytes());
+            term.push(s.terminated as u8);
+            trunc.push(s.truncated as u8);
         }
-        let obs: Vec<f32> = outs.iter().flat_map(|o| o.obs.iter().copied()).collect();
-        let rewards: Vec<u8> = outs.iter().flat_map(|o| o.reward.to_le_bytes()).collect();
-        let term: Vec<u8> = outs.iter().map(|o| o.terminated as u8).collect();
-        let trunc: Vec<u8> = outs.iter().map(|o| o.truncated as u8).collect();
         Ok((
             f32_bytes(py, &obs),
             PyBytes::new(py, &rewards),
@@ -285,40 +267,6 @@ impl VecEnv {
             PyBytes::new(py, &trunc),
         ))
     }
-}
-
-/// Runs `f(i, env)` for every env, the envs split into `threads` contiguous chunks (one
-/// scoped thread per chunk beyond the first, which runs here); results in env order, the first
-/// error wins.
-fn parallel<T: Send>(
-    envs: &mut [Box<dyn AnyEnv>],
-    threads: usize,
-    f: impl Fn(usize, &mut Box<dyn AnyEnv>) -> Result<T, rdpg_core::EnvError> + Sync,
-) -> Result<Vec<T>, rdpg_core::EnvError> {
-    let chunk = envs.len().div_ceil(threads.max(1));
-    let run = |start: usize, part: &mut [Box<dyn AnyEnv>]| -> Result<Vec<T>, _> {
-        part.iter_mut()
-            .enumerate()
-            .map(|(k, e)| f(start + k, e))
-            .collect()
-    };
-    let mut parts: Vec<(usize, &mut [Box<dyn AnyEnv>])> = envs
-        .chunks_mut(chunk)
-        .enumerate()
-        .map(|(c, p)| (c * chunk, p))
-        .collect();
-    let (first_start, first) = parts.remove(0);
-    std::thread::scope(|s| {
-        let handles: Vec<_> = parts
-            .into_iter()
-            .map(|(start, p)| s.spawn(move || run(start, p)))
-            .collect();
-        let mut out = run(first_start, first)?;
-        for h in handles {
-            out.extend(h.join().expect("an env thread panicked")?);
-        }
-        Ok(out)
-    })
 }
 
 /// A trained agent of a run or zoo directory, acting deterministically on full observations
