@@ -59,8 +59,13 @@ impl TrainObserver for Recorder {
         self.evals.push(rec.step);
     }
     fn on_update(&mut self, step: u64, stats: &UpdateStats) {
+        // Wall time is the one field that differs between identical runs.
+        let stats = UpdateStats {
+            seconds: 0.0,
+            ..*stats
+        };
         self.events.push(format!("{step} {stats:?}"));
-        self.updates.push((step, *stats));
+        self.updates.push((step, stats));
     }
     fn should_stop(&mut self, step: u64) -> bool {
         self.stop_at.is_some_and(|s| step >= s)

@@ -163,6 +163,11 @@ fn bench_train(a: &TrainBenchArgs) -> Result<()> {
 /// Arguments of `rdpg bench update`.
 #[derive(Debug, Args)]
 pub struct UpdateBenchArgs {
+    /// Time the update of this experiment's agent (its `[agent]` networks and every update
+    /// setting, on its environment's sizes) instead of the paper's networks; `--threads` and
+    /// `--device` still apply.
+    #[arg(long, conflicts_with_all = ["scan", "batch", "opt"])]
+    config: Option<std::path::PathBuf>,
     /// Scan length s (steps before the optimisation part, no gradient).
     #[arg(long, default_value_t = 24)]
     scan: usize,
@@ -208,16 +213,39 @@ fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
         bail!("--iters, --batch and --opt must be positive");
     }
     let device = a.device.spec();
-    let cfg = RdpgConfig {
-        scan_len: a.scan,
-        batch_size: a.batch,
-        opt_len: a.opt,
-        update_len: a.opt,
-        device,
-        num_threads: Some(a.threads),
-        ..RdpgConfig::default()
+    let (cfg, obs_dim, act_dim) = match &a.config {
+        Some(path) => {
+            let exp = crate::experiment::Experiment::load(path, &[])?;
+            let Some(agent) = exp.agent.clone() else {
+                bail!(
+                    "{}: `rdpg bench update` times the RDPG/DDPG update; this is a {} experiment",
+                    path.display(),
+                    exp.algo.as_str()
+                );
+            };
+            let env = rdpg_envs::make_with(&exp.train.env, &exp.train.env_options())?;
+            let dims = (env.observation_space().dim(), env.action_space().dim());
+            let cfg = RdpgConfig {
+                device,
+                num_threads: Some(a.threads),
+                ..agent
+            };
+            (cfg, dims.0, dims.1)
+        }
+        None => {
+            let cfg = RdpgConfig {
+                scan_len: a.scan,
+                batch_size: a.batch,
+                opt_len: a.opt,
+                update_len: a.opt,
+                device,
+                num_threads: Some(a.threads),
+                ..RdpgConfig::default()
+            };
+            (cfg, 24, 4)
+        }
     };
-    let r = bench_update_with(&cfg, 24, 4, 0.0, a.iters)?;
+    let r = bench_update_with(&cfg, obs_dim, act_dim, 0.0, a.iters)?;
     let p = r.per_update;
     let dev = if device == DeviceSpec::Cpu || !rdpg_agents::cuda_available() {
         "cpu"
@@ -227,9 +255,9 @@ fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
     let line = UpdateBenchLine {
         bench: "update",
         device: dev.into(),
-        batch: a.batch,
-        scan: a.scan,
-        opt: a.opt,
+        batch: cfg.batch_size,
+        scan: cfg.scan_len,
+        opt: cfg.opt_len,
         iters: a.iters,
         threads: a.threads,
         ms_scan: p.scan * 1e3,

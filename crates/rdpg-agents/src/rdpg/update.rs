@@ -241,6 +241,15 @@ impl RdpgAgent {
         sc: &Scanned,
     ) -> (Option<(Tensor, Tensor)>, Tensor) {
         let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+        if let (false, Some(t), Some(h)) = (
+            self.actor.core.is_recurrent(),
+            &self.targets,
+            &sc.target_actor,
+        ) {
+            // Feed-forward with a target actor: the behaviour actor's run along the window
+            // would serve nothing (no states to keep, the bootstrap comes from mu').
+            return (None, tail_action(&t.actor, p, h));
+        }
         let xa = self.actor.input_seq(&p.obs_win); // [N, l+1, E]
         let (ya, states) = if need_states {
             let (ya, hb, cb, _) = self.actor.core.stepwise(&xa, &sc.actor);
@@ -270,7 +279,14 @@ impl RdpgAgent {
                 .critics
                 .iter()
                 .zip(&sc.target_critics)
-                .map(|(c, h)| tail_q(p, &critic_window(c, p, h, Some(a_tail))))
+                .map(|(c, h)| {
+                    if c.core.is_recurrent() {
+                        tail_q(p, &critic_window(c, p, h, Some(a_tail)))
+                    } else {
+                        // Feed-forward: Q'(o_tail, a_tail) needs no run along the window.
+                        c.step(&tail_obs(p), a_tail, h).0 // [N]
+                    }
+                })
                 .collect();
             min_all(&qs)
         })
@@ -506,6 +522,11 @@ impl RdpgAgent {
     /// gradient).
     pub(super) fn critic_states(&self, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
         let critic = &self.critics[0];
+        if !critic.core.is_recurrent() {
+            // Zero-width states, `[N, l, 0]`: nothing to run.
+            let z = h.h.new_zeros([p.n, p.l, 0], (self.kind, self.device));
+            return (z.shallow_clone(), z);
+        }
         let x = critic.input_seq(&p.obs_win.narrow(1, 0, p.l), &p.act_win);
         let (_, hb, cb, _) = critic.core.stepwise(&x, h);
         (hb, cb)
@@ -587,10 +608,19 @@ pub(super) fn tail_q(p: &Prepared, q_ext: &Tensor) -> Tensor {
     (q_ext * &p.tail_onehot).sum_dim_intlist(1, false, q_ext.kind())
 }
 
-/// `mu'(o_tail)` of `actor` from its scanned state: `[N, A]`.
+/// `mu'(o_tail)` of `actor` from its scanned state: `[N, A]`. A feed-forward actor acts on
+/// the tail observation alone.
 pub(super) fn tail_action(actor: &Actor, p: &Prepared, h: &RecState) -> Tensor {
+    if !actor.core.is_recurrent() {
+        return actor.step(&tail_obs(p), h).0;
+    }
     let (mu, _) = actor.forward_seq(&p.obs_win, h); // [N, l+1, A]
     (mu * p.tail_onehot.unsqueeze(-1)).sum_dim_intlist(1, false, p.obs_win.kind())
+}
+
+/// Each window's tail observation `o_tail` (at position `len_n`): `[N, D]`.
+pub(super) fn tail_obs(p: &Prepared) -> Tensor {
+    (&p.obs_win * p.tail_onehot.unsqueeze(-1)).sum_dim_intlist(1, false, p.obs_win.kind())
 }
 
 /// Element-wise minimum of one or two tensors.
