@@ -26,16 +26,10 @@ fn tmp(name: &str) -> PathBuf {
     dir.join(name)
 }
 
-/// `rdpg rollout` reproduces a Gymnasium trace through its JSON-lines contract, with numbers
-/// that parse back to the exact f32 / f64 values.
-#[test]
-fn rollout_reproduces_a_gymnasium_trace() {
-    let fixture = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/fixtures/traces/hardcore_random_fall.json");
-    let trace: Value = serde_json::from_str(&std::fs::read_to_string(fixture).unwrap()).unwrap();
-    let ep = &trace["episodes"][0];
-    let actions = ep["actions"].as_array().unwrap();
-    let text: String = actions
+/// JSON actions (arrays of numbers) as `rdpg rollout`'s actions file: one comma-separated
+/// float32 action per line.
+fn actions_csv(actions: &[Value]) -> String {
+    actions
         .iter()
         .map(|a| {
             let v: Vec<String> = a
@@ -46,7 +40,19 @@ fn rollout_reproduces_a_gymnasium_trace() {
                 .collect();
             v.join(",") + "\n"
         })
-        .collect();
+        .collect()
+}
+
+/// `rdpg rollout` reproduces a Gymnasium trace through its JSON-lines contract, with numbers
+/// that parse back to the exact f32 / f64 values.
+#[test]
+fn rollout_reproduces_a_gymnasium_trace() {
+    let fixture = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/fixtures/traces/hardcore_random_fall.json");
+    let trace: Value = serde_json::from_str(&std::fs::read_to_string(fixture).unwrap()).unwrap();
+    let ep = &trace["episodes"][0];
+    let actions = ep["actions"].as_array().unwrap();
+    let text = actions_csv(actions);
     let file = tmp("actions.csv");
     std::fs::write(&file, text).unwrap();
     let out = ok(rdpg()
@@ -505,20 +511,7 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     for (k, ep) in episodes.iter().enumerate() {
         assert_eq!(ep["seed"], 77 + k as u64);
         assert_eq!(ep["return"], line["returns"][k]);
-        let csv: String = ep["actions"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|a| {
-                let v: Vec<String> = a
-                    .as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|x| (x.as_f64().unwrap() as f32).to_string())
-                    .collect();
-                v.join(",") + "\n"
-            })
-            .collect();
+        let csv = actions_csv(ep["actions"].as_array().unwrap());
         let file = tmp("replay.csv");
         std::fs::write(&file, csv).unwrap();
         let out = ok(rdpg()
