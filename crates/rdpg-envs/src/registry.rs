@@ -34,6 +34,9 @@ pub struct EnvOptions {
     pub hide_obs: Vec<usize>,
     /// Overrides the registered time limit.
     pub max_episode_steps: Option<usize>,
+    /// Walkers only: a new Box2D world at every reset, so that each episode depends on its
+    /// seed and actions alone ([`WalkerConfig::fresh_world`]); training uses it.
+    pub fresh_world: bool,
 }
 
 /// Builds a registered environment with its time limit (1600 steps for BipedalWalker-v3, 2000
@@ -50,6 +53,7 @@ pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvErro
             Box::new(BipedalWalker::new(WalkerConfig {
                 hardcore: id == "BipedalWalkerHardcore-v3",
                 reward: opts.reward,
+                fresh_world: opts.fresh_world,
             })?)
         }
         "Pendulum-v1" | "PendulumNoVel-v1" | "CueMemory-v0" | "DelayedCue-v0" => {

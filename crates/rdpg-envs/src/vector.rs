@@ -522,6 +522,7 @@ mod tests {
     fn seed_schedule_restores_episodes_mid_way() {
         let opts = EnvOptions {
             max_episode_steps: Some(40),
+            fresh_world: true,
             ..Default::default()
         };
         let mut a = VecEnv::make("BipedalWalkerHardcore-v3", &opts, 2, 2).unwrap();

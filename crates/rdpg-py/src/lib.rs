@@ -40,10 +40,12 @@ fn options(reward: &str, hide_obs: Vec<usize>) -> PyResult<EnvOptions> {
             )))
         }
     };
+    // Gymnasium's behaviour: the walker keeps its Box2D world across resets.
     Ok(EnvOptions {
         reward,
         hide_obs,
         max_episode_steps: None,
+        fresh_world: false,
     })
 }
 

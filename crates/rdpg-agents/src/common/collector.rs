@@ -9,7 +9,7 @@
 //! checked against the saved one.
 
 use rdpg_envs::vector::VecStep;
-use rdpg_envs::VecEnv;
+use rdpg_envs::{EnvOptions, VecEnv};
 use serde::{Deserialize, Serialize};
 
 use crate::common::config::TrainConfig;
@@ -105,8 +105,9 @@ impl Collector {
             let o = venv.restore(i, ep.env_actions.clone())?;
             if o != st.obs[i] {
                 return Err(AgentError::Checkpoint(format!(
-                    "env {i}: rebuilt episode differs from the checkpoint (different \
-                     environment build?)"
+                    "env {i}: rebuilt episode differs from the checkpoint (a checkpoint \
+                     written before training walkers used a fresh Box2D world per episode, \
+                     rdpg < 2026-12-01 12:45 UTC, or another environment build)"
                 )));
             }
         }
@@ -197,6 +198,12 @@ impl Collector {
 fn make_envs(cfg: &TrainConfig) -> Result<(VecEnv, Vec<f32>, Vec<f32>)> {
     let probe = rdpg_envs::make_with(&cfg.env, &cfg.env_options())?;
     let space = probe.action_space();
-    let venv = VecEnv::make(&cfg.env, &cfg.env_options(), cfg.num_envs, cfg.workers)?;
+    // Each training episode depends on its seed and actions alone (a walker builds a new
+    // Box2D world at each reset): a checkpoint can then rebuild the episodes in progress.
+    let opts = EnvOptions {
+        fresh_world: true,
+        ..cfg.env_options()
+    };
+    let venv = VecEnv::make(&cfg.env, &opts, cfg.num_envs, cfg.workers)?;
     Ok((venv, space.low.clone(), space.high.clone()))
 }

@@ -133,12 +133,15 @@ impl TrainConfig {
         Ok(())
     }
 
-    /// The environment options of the run's training environments.
+    /// The environment options of the run (reward, observation mask), as Gymnasium's env
+    /// behaves: evaluation, rendering and recording use them. The training environments add
+    /// `fresh_world` (see the collector).
     pub fn env_options(&self) -> EnvOptions {
         EnvOptions {
             reward: self.reward,
             hide_obs: self.hide_obs.clone(),
             max_episode_steps: None,
+            fresh_world: false,
         }
     }
 }

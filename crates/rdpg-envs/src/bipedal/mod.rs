@@ -97,6 +97,14 @@ pub struct WalkerConfig {
     pub hardcore: bool,
     /// Reward paid by `step` (the stock reward is always in `info.stock_reward` otherwise).
     pub reward: WalkerReward,
+    /// Build a new Box2D world at every reset. Gymnasium's walker keeps one world for its
+    /// whole life, and Box2D's internal state (proxy ids, allocator free lists) carries over
+    /// the resets, so the contacts of an episode, and from the first one on its trajectory,
+    /// can depend on the episodes before it (the same in Gymnasium and here, bit for bit).
+    /// With a fresh world each episode is a function of its seed and actions alone, equal to
+    /// the first episode of a new Gymnasium env: what training needs to rebuild an episode
+    /// in progress from a checkpoint. Default: off (Gymnasium's behaviour).
+    pub fresh_world: bool,
 }
 
 /// A drawable terrain piece kept for rendering.
@@ -497,7 +505,16 @@ impl Env for BipedalWalker {
             if let Some(s) = seed {
                 self.rng = Some(NpRng::from_seed(s));
             }
-            self.destroy()?;
+            if self.config.fresh_world {
+                // Dropping the old world frees every body, joint and contact it holds.
+                self.world = World::new([0.0, -10.0], true).map_err(phys)?;
+                self.terrain_bodies.clear();
+                self.hull = None;
+                self.legs.clear();
+                self.joints.clear();
+            } else {
+                self.destroy()?;
+            }
             self.world.set_contact_recording(true);
             self.game_over = false;
             self.prev_shaping = None;
@@ -611,11 +628,63 @@ mod tests {
         assert!(big.obs.iter().all(|v| v.is_finite()));
     }
 
+    /// With `fresh_world` an episode is a function of its seed and actions alone: after other
+    /// episodes in the same env it equals the same episode in a new env. Without it, as in
+    /// Gymnasium (checked with gymnasium 1.4.0: the same history effect, step for step),
+    /// Box2D's state carried over the resets changes the trajectory of 1 of these 5 episodes.
+    #[test]
+    fn fresh_world_episodes_depend_on_seed_and_actions_alone() {
+        let cfg = WalkerConfig {
+            fresh_world: true,
+            ..Default::default()
+        };
+        let mut rng = NpRng::from_seed(0);
+        let mut diverged_without = 0;
+        for trial in 0..5u64 {
+            let actions: Vec<[f32; 4]> = (0..400)
+                .map(|_| std::array::from_fn(|_| rng.uniform(-1.0, 1.0) as f32))
+                .collect();
+            let run = |fresh: bool, history: bool| {
+                let mut env = BipedalWalker::new(WalkerConfig {
+                    fresh_world: fresh,
+                    ..cfg
+                })
+                .unwrap();
+                if history {
+                    for e in 0..3 {
+                        env.reset(Some(100 + e + 10 * trial)).unwrap();
+                        for a in actions.iter().rev() {
+                            if env.step(a).unwrap().done() {
+                                break;
+                            }
+                        }
+                    }
+                }
+                let mut obs = vec![env.reset(Some(5 + trial)).unwrap().0];
+                for a in &actions {
+                    let s = env.step(a).unwrap();
+                    obs.push(s.obs.clone());
+                    if s.done() {
+                        break;
+                    }
+                }
+                obs
+            };
+            assert_eq!(run(true, true), run(true, false), "trial {trial}");
+            diverged_without += (run(false, true) != run(false, false)) as usize;
+        }
+        assert_eq!(
+            diverged_without, 1,
+            "the history effect this option removes"
+        );
+    }
+
     #[test]
     fn paper_reward_pays_minus_20_on_a_fall() {
         let mut env = BipedalWalker::new(WalkerConfig {
             hardcore: false,
             reward: WalkerReward::Paper,
+            ..Default::default()
         })
         .unwrap();
         env.reset(Some(1)).unwrap();
