@@ -1,8 +1,9 @@
 """Replays the episodes of `rdpg eval --actions-out FILE` in Gymnasium and checks their returns.
 
-Each line of FILE is `{"seed": N, "return": R, "actions": [[a0, a1, ...], ...]}`. The episode
-is replayed from `env.reset(seed=N)` with the actions as float32 (the dtype rdpg acts in), and
-the Gymnasium return must equal R exactly (the walkers are bit-identical).
+Each line of FILE is `{"seed": N, "return": R, "actions": [[a0, a1, ...], ...]}`. The episodes
+are replayed in order in one env (as `rdpg eval` ran them: a walker keeps its Box2D world across
+resets), each from `env.reset(seed=N)` with the actions as float32 (the dtype rdpg acts in), and
+each Gymnasium return must equal R exactly (the walkers are bit-identical).
 
 Usage: .venv-ref/bin/python scripts/reference/replay_actions.py FILE --env BipedalWalker-v3
 Exit status 1 if any episode differs.

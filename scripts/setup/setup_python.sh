@@ -10,7 +10,13 @@ set -euo pipefail
 root="$(cd "$(dirname "$0")/../.." && pwd)"
 venv="${RDPG_VENV:-$root/.venv}"
 "$venv/bin/python3" -m pip install --quiet -r "$root/scripts/setup/requirements_python.txt"
-VIRTUAL_ENV="$venv" PYO3_PYTHON="$venv/bin/python3" \
-  "$venv/bin/maturin" develop --quiet --release -m "$root/crates/rdpg-py/Cargo.toml" 2>&1 \
-  | grep -v -e "patchelf" -e "^📦" -e "^✏️" -e "^🛠" -e "Requirement already satisfied" || true
+log="$(mktemp)"
+if ! VIRTUAL_ENV="$venv" PYO3_PYTHON="$venv/bin/python3" \
+  "$venv/bin/maturin" develop --quiet --release -m "$root/crates/rdpg-py/Cargo.toml" >"$log" 2>&1; then
+  cat "$log" >&2
+  rm -f "$log"
+  echo "error: building the rdpg Python package failed" >&2
+  exit 1
+fi
+rm -f "$log"
 "$venv/bin/python3" -c "import rdpg, gymnasium; print('rdpg python package ready in $venv')"

@@ -83,8 +83,16 @@ pub fn new_trainer(train: TrainConfig, learner: Learner) -> Result<Box<dyn Train
 /// Resumes the trainer checkpoint in `dir`, whatever its algorithm (read from its
 /// `checkpoint.json`). Continuing gives the same result as never having stopped.
 pub fn load_trainer(dir: &Path) -> Result<Box<dyn Trainer>> {
+    let header = Header::read(dir, None)?;
+    // Every checkpoint of this format is sealed: a missing manifest is damage, not age.
+    if !dir.join(common::checkpoint::MANIFEST).exists() {
+        return Err(AgentError::Checkpoint(format!(
+            "{}: no manifest.json (the checkpoint was not finished or has been altered)",
+            dir.display()
+        )));
+    }
     common::checkpoint::verify(dir)?;
-    Ok(match Header::read(dir, None)?.trainer {
+    Ok(match header.trainer {
         TrainerKind::OffPolicy => Box::new(OffPolicyTrainer::load(dir)?),
         TrainerKind::Ppo => Box::new(PpoTrainer::load(dir)?),
     })

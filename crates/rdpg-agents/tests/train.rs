@@ -273,24 +273,27 @@ fn checkpoints_of_another_format_or_trainer_are_refused_naming_them() {
         rdpg_agents::PpoTrainer::load(&d).err().unwrap().to_string(),
     ] {
         assert!(
-            err.contains("format 1") && err.contains("format 2"),
+            err.contains("format 1") && err.contains("format 3"),
             "{err}"
         );
     }
     std::fs::write(
         d.join("checkpoint.json"),
-        r#"{"format": 2, "trainer": "ppo"}"#,
+        r#"{"format": 3, "trainer": "ppo"}"#,
     )
     .unwrap();
     let err = OffPolicyTrainer::load(&d).err().unwrap().to_string();
     assert!(err.contains("Ppo") && err.contains("OffPolicy"), "{err}");
     std::fs::write(
         d.join("checkpoint.json"),
-        r#"{"format": 3, "trainer": "off_policy"}"#,
+        r#"{"format": 2, "trainer": "off_policy"}"#,
     )
     .unwrap();
     let err = rdpg_agents::load_trainer(&d).err().unwrap().to_string();
-    assert!(err.contains("format 3"), "{err}");
+    assert!(
+        err.contains("format 2") && err.contains("format 3"),
+        "{err}"
+    );
 }
 
 /// The algorithm-agnostic surface: `new_trainer` and `load_trainer` give a `Box<dyn Trainer>`

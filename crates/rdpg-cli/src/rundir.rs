@@ -170,6 +170,22 @@ impl RunDir {
         Ok(())
     }
 
+    /// Removes `checkpoints/best` when it was chosen by an evaluation after step `upto` (a
+    /// crash between saving it and the next `latest`): the resumed run's metrics end at `upto`,
+    /// so that agent has no evaluation row behind it. The resumed run saves its best again.
+    pub fn drop_best_after(&self, upto: u64) -> Result<()> {
+        let best = self.checkpoint(Which::Best);
+        let step = std::fs::read_to_string(best.join("eval.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<EvalRecord>(&t).ok())
+            .map(|e| e.step);
+        if step.is_some_and(|s| s > upto) {
+            std::fs::remove_dir_all(&best)
+                .with_context(|| format!("removing {}", best.display()))?;
+        }
+        Ok(())
+    }
+
     /// The agent of a checkpoint: `checkpoints/<which>/agent` (a zoo entry's `agent/`).
     pub fn agent(&self, which: Which) -> PathBuf {
         if self.is_zoo_entry() {

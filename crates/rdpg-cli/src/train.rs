@@ -121,7 +121,7 @@ fn save_latest(
     let pending = tmp.join("pending_updates.json");
     std::fs::write(&pending, serde_json::to_string(&log.updates)?)
         .with_context(|| format!("writing {}", pending.display()))?;
-    seal(&tmp.join("agent"))?;
+    // Sealed again with the files added here.
     seal(&tmp)?;
     run.commit(&tmp, &dst)
 }
@@ -244,7 +244,7 @@ fn save_best(trainer: &dyn Trainer, run: &RunDir, eval: Option<&EvalRecord>) -> 
         std::fs::write(&p, serde_json::to_string_pretty(e)?)
             .with_context(|| format!("writing {}", p.display()))?;
     }
-    seal(&tmp.join("agent"))?;
+    // Sealed again with the files added here.
     seal(&tmp)?;
     run.commit(&tmp, &dst)
 }
@@ -278,6 +278,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let latest = run.checkpoint(Which::Latest);
         let mut trainer = rdpg_agents::load_trainer(&latest)
             .with_context(|| format!("resuming {}", dir.display()))?;
+        run.drop_best_after(trainer.steps())?;
         // The checkpoint's own copy of the experiment: what the trainer was built from.
         let snapshot = latest.join("config.toml");
         if snapshot.exists() {
@@ -318,6 +319,12 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         std::fs::create_dir_all(run.root())
             .with_context(|| format!("creating run directory {}", run.root().display()))?;
         let lock = run.lock()?;
+        if run.exists() {
+            bail!(
+                "{} was just started by another `rdpg train`",
+                run.root().display()
+            );
+        }
         std::fs::write(run.config(), exp.to_toml()?)
             .with_context(|| format!("writing {}", run.config().display()))?;
         (run, exp, trainer, lock)
@@ -354,8 +361,9 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
-            save_latest(trainer.as_mut(), &run, &exp, &log)?;
+            // The metric record first: a checkpoint must never be ahead of it.
             log.sync()?;
+            save_latest(trainer.as_mut(), &run, &exp, &log)?;
             log.write_summary(&exp, trainer.steps())?;
             log.bar.abandon();
             eprintln!(
@@ -368,8 +376,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             std::process::exit(130);
         }
         if trainer.steps() >= next_ckpt {
-            save_latest(trainer.as_mut(), &run, &exp, &log)?;
             log.sync()?;
+            save_latest(trainer.as_mut(), &run, &exp, &log)?;
             next_ckpt = every(exp.run.checkpoint_every, trainer.steps());
         }
     }
@@ -380,14 +388,18 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         .is_none_or(|e| e.step != trainer.steps())
     {
         let r = trainer.evaluate()?;
-        Observer::new(&mut log).on_eval(&r);
+        let mut obs = Observer::new(&mut log);
+        obs.on_eval(&r);
+        if let Some(e) = obs.error {
+            return Err(e);
+        }
         if std::mem::take(&mut log.new_best) {
             save_best(trainer.as_ref(), &run, log.best_eval.as_ref())?;
         }
     }
+    log.sync()?;
     save_latest(trainer.as_mut(), &run, &exp, &log)?;
     log.test_eval = Some(test_best(&run, &exp, log.best_eval.as_ref())?);
-    log.sync()?;
     log.write_summary(&exp, trainer.steps())?;
     log.bar.finish();
     let s = log.summary(&exp, trainer.steps());
@@ -428,8 +440,9 @@ pub struct EvalArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// Also write every episode's actions to FILE, one JSON line per episode:
-    /// `{"seed": N, "return": R, "actions": [[a0, a1, ...], ...]}`. Replaying them (as
-    /// float32) from `reset(seed=N)` in Gymnasium gives the same episode and return.
+    /// `{"seed": N, "return": R, "actions": [[a0, a1, ...], ...]}`. Replaying the lines in
+    /// order in one Gymnasium env (`reset(seed=N)`, the actions as float32) gives the same
+    /// episodes and returns (scripts/reference/replay_actions.py).
     #[arg(long, value_name = "FILE")]
     actions_out: Option<PathBuf>,
 }

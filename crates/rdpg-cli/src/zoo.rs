@@ -143,10 +143,27 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     }
     let exp = run.experiment()?;
     let summary = run.read_summary()?;
+    // Write into a temporary sibling, then rename: no half-written entry is left behind.
+    let mut tmp_name = a.out.file_name().unwrap_or_default().to_os_string();
+    tmp_name.push(".partial");
+    let tmp = a.out.with_file_name(tmp_name);
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
+    }
+    std::fs::create_dir_all(tmp.join("agent"))
+        .with_context(|| format!("creating {}", tmp.display()))?;
+    // Copy first, then test the copy: what ships is what was tested, even if the run is
+    // still training and commits a new best meanwhile.
     let best_dir = run.checkpoint(Which::Best);
-    let chosen: EvalRecord = read_json(&best_dir.join("eval.json"))?;
     let agent_dir = run.agent(Which::Best);
-    let agent_meta: serde_json::Value = read_json(&agent_dir.join("agent.json"))?;
+    for f in ["agent.json", "weights.safetensors"] {
+        copy(&agent_dir.join(f), &tmp.join("agent").join(f))?;
+    }
+    seal(&tmp.join("agent"))?;
+    let chosen: EvalRecord = read_json(&best_dir.join("eval.json"))?;
+    copy(&run.config(), &tmp.join("config.toml"))?;
+    copy(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
+    let agent_meta: serde_json::Value = read_json(&tmp.join("agent").join("agent.json"))?;
     let updates = agent_meta["updates"].as_u64().with_context(|| {
         format!(
             "{}: no `updates` count",
@@ -157,26 +174,11 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         Metric::Eval { step, wall, .. } if *step == chosen.step => Some(*wall),
         _ => None,
     });
-
-    // Test first: nothing is written for an agent that cannot be evaluated.
-    let (_, mut policy) = run.policy(Which::Best)?;
+    let entry = RunDir::new(&tmp);
+    let (_, mut policy) = entry.policy(Which::Best)?;
     let t = &exp.train;
     let episodes = a.episodes.unwrap_or(t.test_episodes);
     let test = evaluate_policy(policy.as_mut(), t, episodes, t.test_seed)?;
-
-    // Write into a temporary sibling, then rename: no half-written entry is left behind.
-    let tmp = a.out.with_extension("partial");
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
-    }
-    std::fs::create_dir_all(tmp.join("agent"))
-        .with_context(|| format!("creating {}", tmp.display()))?;
-    for f in ["agent.json", "weights.safetensors"] {
-        copy(&agent_dir.join(f), &tmp.join("agent").join(f))?;
-    }
-    seal(&tmp.join("agent"))?;
-    copy(&run.config(), &tmp.join("config.toml"))?;
-    copy(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
     crate::report::plot_runs(std::slice::from_ref(&a.run), &tmp.join("curves.png"))?;
     let target = RenderTarget {
         gif: tmp.join("episode.gif"),
@@ -185,7 +187,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         scale_down: 2,
         max_steps: Some(a.gif_steps),
     };
-    render_run(&RunDir::new(&tmp), Which::Best, t.test_seed, &target)?;
+    render_run(&entry, Which::Best, t.test_seed, &target)?;
 
     let mut files = Vec::new();
     for f in [

@@ -30,7 +30,7 @@ fn runtime_err(e: impl std::fmt::Display) -> PyErr {
     PyRuntimeError::new_err(e.to_string())
 }
 
-fn options(reward: &str, hide_obs: Vec<usize>) -> PyResult<EnvOptions> {
+fn options(reward: &str, hide_obs: Vec<usize>, time_limit: bool) -> PyResult<EnvOptions> {
     let reward = match reward {
         "stock" => WalkerReward::Stock,
         "paper" => WalkerReward::Paper,
@@ -44,7 +44,9 @@ fn options(reward: &str, hide_obs: Vec<usize>) -> PyResult<EnvOptions> {
     Ok(EnvOptions {
         reward,
         hide_obs,
-        max_episode_steps: None,
+        // Without its own limit the env is Gymnasium's raw class: `gymnasium.make` adds the
+        // TimeLimit wrapper (and honours `max_episode_steps=`).
+        max_episode_steps: (!time_limit).then_some(usize::MAX),
         fresh_world: false,
     })
 }
@@ -83,7 +85,8 @@ fn check_action(a: &[f32], what: &str) -> PyResult<()> {
     }
 }
 
-/// One environment: `Env(id, reward="stock", hide_obs=[])`.
+/// One environment: `Env(id, reward="stock", hide_obs=[], time_limit=True)`; with
+/// `time_limit=False` it never truncates (Gymnasium's `TimeLimit` wrapper does).
 #[pyclass(module = "rdpg._rdpg")]
 pub struct Env {
     /// Behind a mutex only to make the class `Sync`; methods take `&mut self`.
@@ -99,10 +102,10 @@ impl Env {
 #[pymethods]
 impl Env {
     #[new]
-    #[pyo3(signature = (id, reward = "stock", hide_obs = Vec::new()))]
-    fn new(id: &str, reward: &str, hide_obs: Vec<usize>) -> PyResult<Self> {
+    #[pyo3(signature = (id, reward = "stock", hide_obs = Vec::new(), time_limit = true))]
+    fn new(id: &str, reward: &str, hide_obs: Vec<usize>, time_limit: bool) -> PyResult<Self> {
         Ok(Self {
-            env: Mutex::new(make(id, &options(reward, hide_obs)?)?),
+            env: Mutex::new(make(id, &options(reward, hide_obs, time_limit)?)?),
         })
     }
 
@@ -192,8 +195,9 @@ impl VecEnv {
         }
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let workers = threads.unwrap_or(cores).clamp(1, num_envs);
-        let inner = rdpg_envs::VecEnv::make(id, &options(reward, hide_obs)?, num_envs, workers)
-            .map_err(|e| value_err(format!("{id}: {e}")))?;
+        let inner =
+            rdpg_envs::VecEnv::make(id, &options(reward, hide_obs, true)?, num_envs, workers)
+                .map_err(|e| value_err(format!("{id}: {e}")))?;
         Ok(Self {
             obs_dim: inner.obs_dim(),
             act_dim: inner.act_dim(),

@@ -150,7 +150,8 @@ def test_a_policy_in_a_plain_gymnasium_loop_scores_what_rdpg_eval_reports(traine
         policy = rdpg.Policy.load(run)
         episodes, seed = 3, 3_000_000
         out = subprocess.run(
-            [str(_rdpg_binary()), "eval", "--run", str(run), "--episodes", str(episodes)],
+            [str(_rdpg_binary()), "eval", "--run", str(run), "--episodes", str(episodes),
+             "--seed", str(seed)],
             check=True, capture_output=True, text=True,
         )
         want = json.loads(out.stdout)["returns"]
@@ -169,29 +170,26 @@ def test_a_policy_in_a_plain_gymnasium_loop_scores_what_rdpg_eval_reports(traine
 
 
 def test_batched_policy_acts_like_one_policy_per_env(trained_run):
-    policy = rdpg.Policy.load(trained_run)
-    single = rdpg.Policy.load(trained_run)
-    vec = rdpg.make_vec(policy.env_id, 2)
+    # Each row of the batched form keeps its own recurrent state: row k equals a lone policy
+    # fed env k only.
+    batched = rdpg.Policy.load(trained_run)
+    lone = [rdpg.Policy.load(trained_run) for _ in range(2)]
+    vec = rdpg.make_vec(batched.env_id, 2)
+    envs = [gym.make(f"rdpg/{batched.env_id}") for _ in range(2)]
     obs, _ = vec.reset(seed=5)
-    policy.reset()
-    for _ in range(4):
-        a = policy.act_batch(obs)
-        single.reset()
-        assert a.shape == (2,) + policy.action_space.shape
-        obs, *_ = vec.step(a)
-    # Each row keeps its own recurrent state: row 0 equals a lone policy fed env 0 only.
-    env = gym.make(f"rdpg/{policy.env_id}")
-    o, _ = env.reset(seed=5)
-    policy.reset()
-    single.reset()
-    vec.reset(seed=5)
-    ob, _ = vec.reset(seed=5)
-    for _ in range(4):
-        ab = policy.act_batch(ob)
-        a0 = single.act(o)
-        assert np.array_equal(ab[0], a0)
-        ob, *_ = vec.step(ab)
-        o, *_ = env.step(a0)
+    single = [env.reset(seed=5 + k)[0] for k, env in enumerate(envs)]
+    batched.reset()
+    for p in lone:
+        p.reset()
+    for _ in range(5):
+        a = batched.act_batch(obs)
+        assert a.shape == (2,) + batched.action_space.shape
+        for k in range(2):
+            assert np.array_equal(a[k], lone[k].act(single[k]))
+            single[k], *_ = envs[k].step(a[k])
+        obs, _, term, trunc, _ = vec.step(a)
+        if term.any() or trunc.any():
+            break
 
 
 def test_a_damaged_policy_directory_is_refused(trained_run, tmp_path):

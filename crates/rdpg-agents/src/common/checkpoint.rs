@@ -22,8 +22,10 @@ use tch::Tensor;
 use crate::error::{AgentError, Result};
 
 /// The trainer checkpoint format this build writes and reads. Format 1 (rdpg 0.1, before the
-/// re-cut of the agents crate) had no `checkpoint.json` and a different `loop.bin`.
-pub const TRAINER_FORMAT: u32 = 2;
+/// re-cut of the agents crate) had no `checkpoint.json` and a different `loop.bin`; format 2
+/// had no `manifest.json`, and its walkers kept one Box2D world across episodes, so their
+/// episodes in progress cannot be rebuilt (see `rdpg_envs::WalkerConfig::fresh_world`).
+pub const TRAINER_FORMAT: u32 = 3;
 
 /// A checkpoint error naming the file.
 pub fn ckpt_err(path: &Path, e: impl std::fmt::Display) -> AgentError {
@@ -75,10 +77,21 @@ fn walk(root: &Path, rel: &str, out: &mut Vec<String>) -> std::io::Result<()> {
 }
 
 fn file_seal(path: &Path) -> Result<FileSeal> {
-    let bytes = std::fs::read(path).map_err(|e| ckpt_err(path, e))?;
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(|e| ckpt_err(path, e))?;
+    let (mut hasher, mut len) = (crc32fast::Hasher::new(), 0u64);
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let k = f.read(&mut buf).map_err(|e| ckpt_err(path, e))?;
+        if k == 0 {
+            break;
+        }
+        hasher.update(&buf[..k]);
+        len += k as u64;
+    }
     Ok(FileSeal {
-        len: bytes.len() as u64,
-        crc32: crc32fast::hash(&bytes),
+        len,
+        crc32: hasher.finalize(),
     })
 }
 
@@ -111,7 +124,9 @@ pub fn seal(dir: &Path) -> Result<()> {
         .files
         .keys()
         .filter_map(|f| Path::new(f).parent())
+        .chain([Path::new("")])
         .collect();
+    dirs.sort();
     dirs.dedup();
     for d in dirs {
         sync_path(&dir.join(d))?;
@@ -269,7 +284,9 @@ impl Header {
             return Err(ckpt_err(
                 &path,
                 format!(
-                    "trainer checkpoint format {}, this build reads format {TRAINER_FORMAT}",
+                    "trainer checkpoint format {}, this build reads format {TRAINER_FORMAT} \
+                     (its agent, `agent/` and `checkpoints/best`, still loads for eval, render, \
+                     zoo and record; to train further, start a new run)",
                     h.format
                 ),
             ));

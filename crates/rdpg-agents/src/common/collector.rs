@@ -105,9 +105,8 @@ impl Collector {
             let o = venv.restore(i, ep.env_actions.clone())?;
             if o != st.obs[i] {
                 return Err(AgentError::Checkpoint(format!(
-                    "env {i}: rebuilt episode differs from the checkpoint (a checkpoint \
-                     written before training walkers used a fresh Box2D world per episode, \
-                     rdpg < 2026-12-01 12:45 UTC, or another environment build)"
+                    "env {i}: rebuilt episode differs from the checkpoint (another \
+                     environment build?)"
                 )));
             }
         }

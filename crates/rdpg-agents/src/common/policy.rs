@@ -33,13 +33,16 @@ pub struct EpisodeTrace<'a> {
     /// Its stock return.
     pub ret: f64,
     /// The actions given to the environment (within its bounds), one per step: replaying
-    /// them from `reset(seed)` in Gymnasium, as `float32`, gives the same episode.
+    /// the episodes in order in one Gymnasium env, each from `reset(seed)`, with these
+    /// actions as `float32`, gives the same episodes.
     pub actions: &'a [Vec<f32>],
 }
 
 /// Deterministic evaluation of `policy` on `episodes` episodes of `cfg`'s environment (its
 /// observation mask included) with seeds `seed, seed + 1, ...`, scored on the stock reward,
-/// each episode from a fresh state. `step` of the record is 0.
+/// the policy's state reset for each episode. The episodes run one after the other in one
+/// environment, as in a plain Gymnasium loop (a walker keeps its Box2D world, so an episode
+/// replays exactly after the same earlier ones). `step` of the record is 0.
 pub fn evaluate_policy(
     policy: &mut dyn DeterministicPolicy,
     cfg: &TrainConfig,

@@ -493,7 +493,8 @@ impl PpoAgent {
             kl_coef: self.kl_coef,
             updates: self.updates,
         };
-        write_json(&dir.join("agent.json"), &meta)
+        write_json(&dir.join("agent.json"), &meta)?;
+        crate::common::checkpoint::seal(dir)
     }
 
     /// Restores an agent written by [`PpoAgent::save`]. Missing, truncated or inconsistent files

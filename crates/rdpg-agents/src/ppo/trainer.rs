@@ -244,7 +244,8 @@ impl Trainer for PpoTrainer {
         self.agent.save(dir.join("agent"))?;
         write_bin(&dir.join("loop.bin"), &self.st)?;
         write_bin(&dir.join("collector.bin"), self.collector.state())?;
-        write_json(&dir.join("train.json"), &self.cfg)
+        write_json(&dir.join("train.json"), &self.cfg)?;
+        crate::common::checkpoint::seal(dir)
     }
 
     fn save_agent(&self, dir: &Path) -> Result<()> {

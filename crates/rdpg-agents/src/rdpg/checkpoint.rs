@@ -66,7 +66,8 @@ impl RdpgAgent {
             updates: self.updates,
             rng: self.rng.clone(),
         };
-        write_json(&dir.join("agent.json"), &meta)
+        write_json(&dir.join("agent.json"), &meta)?;
+        crate::common::checkpoint::seal(dir)
     }
 
     /// Restores an agent written by [`RdpgAgent::save`], on the device its config names.

@@ -470,7 +470,8 @@ impl Trainer for OffPolicyTrainer {
         write_bin(&dir.join("loop.bin"), &self.st)?;
         write_bin(&dir.join("collector.bin"), self.collector.state())?;
         write_json(&dir.join("train.json"), &self.cfg)?;
-        write_json(&dir.join("off_policy.json"), &self.off)
+        write_json(&dir.join("off_policy.json"), &self.off)?;
+        crate::common::checkpoint::seal(dir)
     }
 
     fn save_agent(&self, dir: &Path) -> Result<()> {

@@ -85,7 +85,9 @@ class RdpgEnv(gym.Env):
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r}: rdpg envs render 'rgb_array' only")
-        self._env = _rdpg.Env(env_id, reward, list(hide_obs))
+        # The time limit is Gymnasium's TimeLimit wrapper (added by gymnasium.make from the
+        # registration, or by max_episode_steps=), as for Gymnasium's own walkers.
+        self._env = _rdpg.Env(env_id, reward, list(hide_obs), False)
         self.env_id = env_id
         self.render_mode = render_mode
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": _FPS.get(env_id, 30)}
@@ -114,12 +116,15 @@ class RdpgEnv(gym.Env):
 
 
 class RdpgVectorEnv(VectorEnv):
-    """``num_envs`` rdpg environments stepped in parallel on Rust threads (GIL released).
+    """``num_envs`` rdpg environments stepped in parallel on Rust threads (GIL released),
+    each with its registered time limit.
 
     Autoreset: ``AutoresetMode.NEXT_STEP``, Gymnasium's default: the step that ends an episode
     returns its last observation; the next step of that sub-env ignores its action and returns
     the first observation of a new episode (reward 0, both flags false). ``reset(seed=s)``
-    seeds sub-env ``i`` with ``s + i``, as Gymnasium's ``SyncVectorEnv`` does.
+    seeds sub-env ``i`` with ``s + i``, as Gymnasium's ``SyncVectorEnv`` does. (A sub-env whose
+    episode has just ended has already been reset internally; a ``reset()`` without a seed at
+    that moment resets it once more, so its next episode differs from ``SyncVectorEnv``'s.)
     """
 
     def __init__(
