@@ -1393,3 +1393,57 @@ fn acting_on_bad_observations_is_an_error() {
     assert!(e.contains("component 4 of environment 1"), "{e}");
     assert_eq!(st.to_vec(), before);
 }
+
+/// The feed-forward update's short cuts (TD3's critic, target networks): the bootstrap action
+/// is `mu'(o_tail)` and the bootstrap value `min_k Q'_k(o_tail, a_tail)`, computed for each
+/// window on its own tail observation alone, whatever the padding holds; and the actor's
+/// critic states are zero-width.
+#[test]
+fn feed_forward_bootstrap_reads_the_tail_observation_alone() {
+    let cfg = RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![6] },
+        recurrent: false,
+        critic_action_fc: 0,
+        twin_critic: true,
+        tau: 0.01,
+        scan_len: 0,
+        ..tiny()
+    };
+    let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 5, Kind::Double).unwrap();
+    let mut b = batch(&cfg, 10, 0.7, 8);
+    poison_padding(&mut b);
+    assert!(b.opt_len.iter().any(|&k| k < cfg.opt_len));
+    let p = agent.prepare(&b);
+    let sc = tch::no_grad(|| agent.scan_all(&p));
+    let (states, a_tail) = tch::no_grad(|| agent.actor_window(&p, &sc));
+    assert!(states.is_none());
+    let q_tail = tch::no_grad(|| agent.target_tail_q(&p, &sc, &a_tail)).unwrap();
+    let t = agent.targets.as_ref().unwrap();
+    let tt = b.scan + b.opt;
+    for i in 0..b.n {
+        let j = b.scan + b.opt_len[i]; // the tail observation's slot
+        let o: Vec<f32> = b.obs[(i * (tt + 1) + j) * OBS..(i * (tt + 1) + j + 1) * OBS].to_vec();
+        let o = Tensor::from_slice(&o)
+            .view([1, OBS as i64])
+            .to_kind(Kind::Double);
+        let none = t.actor.core.zero_state(1, Kind::Double, Device::Cpu);
+        let a_ref = tch::no_grad(|| t.actor.step(&o, &none).0);
+        let a_i = a_tail.select(0, i as i64).unsqueeze(0);
+        assert_close(&to_vec64(&a_i), &to_vec64(&a_ref), 1e-12, "a_tail");
+        let q_ref: Vec<f64> = t
+            .critics
+            .iter()
+            .map(|c| to_vec64(&tch::no_grad(|| c.step(&o, &a_i, &none).0))[0])
+            .collect();
+        let q_min = q_ref.iter().copied().fold(f64::INFINITY, f64::min);
+        assert_close(
+            &to_vec64(&q_tail.select(0, i as i64).unsqueeze(0)),
+            &[q_min],
+            1e-12,
+            "q_tail",
+        );
+    }
+    let (h, c) = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
+    assert_eq!(h.size(), [b.n as i64, cfg.opt_len as i64, 0]);
+    assert_eq!(c.size(), h.size());
+}
