@@ -37,7 +37,8 @@ pub struct VecStep {
 }
 
 enum Cmd {
-    Reset(Option<u64>),
+    /// Reset with `seed + i`, only the envs whose flag is set (all when `None`).
+    Reset(Option<u64>, Option<Vec<bool>>),
     ResetScheduled(u64, Vec<u64>),
     /// One action per env; `None` leaves that env untouched.
     Step(Vec<Option<Vec<f32>>>),
@@ -189,9 +190,28 @@ impl VecEnv {
     /// Resets every environment, env `i` with seed `seed + i` (or unseeded); returns the
     /// observations.
     pub fn reset(&mut self, seed: Option<u64>) -> Result<Vec<Vec<f32>>, EnvError> {
+        self.reset_some(seed, None)
+    }
+
+    /// [`VecEnv::reset`] of the environments flagged in `which` only (all when `None`); the
+    /// others are left untouched and their observation is empty.
+    pub fn reset_some(
+        &mut self,
+        seed: Option<u64>,
+        which: Option<&[bool]>,
+    ) -> Result<Vec<Vec<f32>>, EnvError> {
+        if which.is_some_and(|w| w.len() != self.num_envs) {
+            return Err(EnvError::Config(format!(
+                "reset flags for {} envs",
+                self.num_envs
+            )));
+        }
         self.schedule = None;
+        let mut start = 0;
         for w in &mut self.workers {
-            send(w, Cmd::Reset(seed))?;
+            let flags = which.map(|f| f[start..start + w.count].to_vec());
+            send(w, Cmd::Reset(seed, flags))?;
+            start += w.count;
         }
         Ok(self.collect()?.into_iter().map(|s| s.obs).collect())
     }
@@ -376,11 +396,14 @@ impl Shard {
                 }
                 Ok(vec![fresh(obs, info)])
             })(),
-            Cmd::Reset(seed) => {
+            Cmd::Reset(seed, flags) => {
                 *schedule = None;
                 envs.iter_mut()
                     .enumerate()
                     .map(|(i, env)| {
+                        if flags.as_ref().is_some_and(|f| !f[i]) {
+                            return Ok(fresh(Vec::new(), EnvInfo::default()));
+                        }
                         let (obs, info) =
                             env.reset(seed.map(|s| s.wrapping_add(first + i as u64)))?;
                         Ok(fresh(obs, info))

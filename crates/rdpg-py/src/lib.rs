@@ -215,9 +215,21 @@ impl VecEnv {
     #[pyo3(signature = (seed = None))]
     fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyBytes>> {
         let inner = self.inner.get_mut().unwrap_or_else(|p| p.into_inner());
-        let obs = py.detach(|| inner.reset(seed)).map_err(runtime_err)?;
-        self.pending_reset.iter_mut().for_each(|p| *p = None);
-        Ok(f32_bytes(py, &obs.concat()))
+        // Without a seed, an env whose episode just ended has already been reset (unseeded)
+        // inside the vector env: its pending first observation is its reset, as one reset in
+        // Gymnasium. With a seed every env is reset.
+        let which: Option<Vec<bool>> = seed
+            .is_none()
+            .then(|| self.pending_reset.iter().map(Option::is_none).collect());
+        let obs = py
+            .detach(|| inner.reset_some(seed, which.as_deref()))
+            .map_err(runtime_err)?;
+        let obs: Vec<f32> = obs
+            .into_iter()
+            .zip(&mut self.pending_reset)
+            .flat_map(|(o, pending)| pending.take().filter(|_| o.is_empty()).unwrap_or(o))
+            .collect();
+        Ok(f32_bytes(py, &obs))
     }
 
     /// Steps every env with its row of `actions` (`[n, act_dim]` float32 bytes): `(obs

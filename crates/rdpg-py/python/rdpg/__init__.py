@@ -122,9 +122,7 @@ class RdpgVectorEnv(VectorEnv):
     Autoreset: ``AutoresetMode.NEXT_STEP``, Gymnasium's default: the step that ends an episode
     returns its last observation; the next step of that sub-env ignores its action and returns
     the first observation of a new episode (reward 0, both flags false). ``reset(seed=s)``
-    seeds sub-env ``i`` with ``s + i``, as Gymnasium's ``SyncVectorEnv`` does. (A sub-env whose
-    episode has just ended has already been reset internally; a ``reset()`` without a seed at
-    that moment resets it once more, so its next episode differs from ``SyncVectorEnv``'s.)
+    seeds sub-env ``i`` with ``s + i``, as Gymnasium's ``SyncVectorEnv`` does.
     """
 
     def __init__(
