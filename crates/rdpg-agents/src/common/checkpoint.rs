@@ -325,3 +325,73 @@ pub fn restore_vars(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A full disk (`/dev/full` fails every write with ENOSPC) is an error naming the file,
+    /// for every writer: never a silent success with a truncated file.
+    #[test]
+    fn a_full_disk_is_an_error_naming_the_file() {
+        let full = Path::new("/dev/full");
+        if !full.exists() {
+            return;
+        }
+        let big = vec![7u64; 100_000];
+        for e in [
+            write_bin(full, &big).unwrap_err(),
+            write_json(full, &big).unwrap_err(),
+            write_tensors(
+                full,
+                &[("w".into(), Tensor::zeros([1000], tch::kind::FLOAT_CPU))],
+            )
+            .unwrap_err(),
+        ] {
+            assert!(e.to_string().contains("/dev/full"), "{e}");
+        }
+    }
+
+    /// `seal` then `verify`: a flipped byte, a truncated file, a missing file and an extra
+    /// file are each refused, naming the file.
+    #[test]
+    fn verify_refuses_every_kind_of_damage() {
+        let dir = std::env::temp_dir().join(format!("rdpg-seal-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("agent")).unwrap();
+        std::fs::write(dir.join("a.bin"), [1u8, 2, 3, 4]).unwrap();
+        std::fs::write(dir.join("agent").join("w.bin"), [9u8; 64]).unwrap();
+        seal(&dir).unwrap();
+        verify(&dir).unwrap();
+        let damage: [(&str, &dyn Fn()); 4] = [
+            ("a.bin", &|| {
+                std::fs::write(dir.join("a.bin"), [1u8, 2, 3, 5]).unwrap()
+            }),
+            ("a.bin", &|| {
+                std::fs::write(dir.join("a.bin"), [1u8, 2, 3]).unwrap()
+            }),
+            ("w.bin", &|| {
+                std::fs::remove_file(dir.join("agent").join("w.bin")).unwrap()
+            }),
+            ("x.bin", &|| {
+                std::fs::write(dir.join("x.bin"), [0u8]).unwrap()
+            }),
+        ];
+        for (name, hurt) in damage {
+            let (a, w) = (
+                std::fs::read(dir.join("a.bin")).unwrap(),
+                std::fs::read(dir.join("agent").join("w.bin")).ok(),
+            );
+            hurt();
+            let e = verify(&dir).unwrap_err().to_string();
+            assert!(e.contains(name), "{name}: {e}");
+            std::fs::write(dir.join("a.bin"), a).unwrap();
+            if let Some(w) = w {
+                std::fs::write(dir.join("agent").join("w.bin"), w).unwrap();
+            }
+            let _ = std::fs::remove_file(dir.join("x.bin"));
+            verify(&dir).unwrap();
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
