@@ -20,6 +20,19 @@ fn ok(cmd: &mut Command) -> std::process::Output {
     out
 }
 
+/// The stderr of a run that must fail (panics if it succeeds or panicked), checked to
+/// contain each of `needles`.
+fn fails(cmd: &mut Command, needles: &[&str]) -> String {
+    let out = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "succeeded: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "{n:?} not in: {err}");
+    }
+    err
+}
+
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("rdpg-cli-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -342,13 +355,12 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     train(&bad, 100);
     let text = std::fs::read_to_string(bad.join("metrics.jsonl")).unwrap();
     std::fs::write(bad.join("metrics.jsonl"), format!("garbage\n{text}")).unwrap();
-    let out = rdpg()
-        .args(["train", "--quiet", "--steps", "200", "--resume"])
-        .arg(&bad)
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("metrics.jsonl:1: bad metrics line"));
+    fails(
+        rdpg()
+            .args(["train", "--quiet", "--steps", "200", "--resume"])
+            .arg(&bad),
+        &["metrics.jsonl:1: bad metrics line"],
+    );
     let weights = |d: &PathBuf| {
         std::fs::read(d.join("checkpoints/latest/agent/weights.safetensors")).unwrap()
     };
@@ -526,13 +538,12 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             .sum();
         assert_eq!(ret, ep["return"].as_f64().unwrap(), "episode {k}");
     }
-    let err = rdpg()
-        .args(["eval", "--actions-out", "/nonexistent/dir/a.jsonl", "--run"])
-        .arg(&one)
-        .output()
-        .unwrap();
-    assert!(!err.status.success());
-    assert!(String::from_utf8_lossy(&err.stderr).contains("/nonexistent/dir/a.jsonl"));
+    fails(
+        rdpg()
+            .args(["eval", "--actions-out", "/nonexistent/dir/a.jsonl", "--run"])
+            .arg(&one),
+        &["/nonexistent/dir/a.jsonl"],
+    );
 
     // `rdpg zoo`: the best agent shipped without optimiser or replay; `eval` and `render`
     // read the entry like a run and score what its summary says.
@@ -574,15 +585,13 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         .arg(&zoo)
         .arg("--gif")
         .arg(tmp("zoo.gif")));
-    let err = zoo_cmd().output().unwrap();
-    assert!(!err.status.success());
-    assert!(String::from_utf8_lossy(&err.stderr).contains("exists"));
-    let err = rdpg()
-        .args(["eval", "--checkpoint", "latest", "--run"])
-        .arg(&zoo)
-        .output()
-        .unwrap();
-    assert!(String::from_utf8_lossy(&err.stderr).contains("zoo entry"));
+    fails(&mut zoo_cmd(), &["exists"]);
+    fails(
+        rdpg()
+            .args(["eval", "--checkpoint", "latest", "--run"])
+            .arg(&zoo),
+        &["zoo entry"],
+    );
 }
 
 /// Unknown keys, bad values and bad overrides are rejected with the key's name.
@@ -729,16 +738,9 @@ fn interrupt_saves_and_the_run_resumes() {
         std::thread::sleep(std::time::Duration::from_millis(100));
     }
     // One writer per run directory: a second `train` on it is refused while this one runs.
-    let second = rdpg()
-        .args(["train", "--quiet", "--resume"])
-        .arg(&dir)
-        .output()
-        .unwrap();
-    assert!(!second.status.success());
-    assert!(
-        String::from_utf8_lossy(&second.stderr).contains("in use by another"),
-        "{}",
-        String::from_utf8_lossy(&second.stderr)
+    fails(
+        rdpg().args(["train", "--quiet", "--resume"]).arg(&dir),
+        &["in use by another"],
     );
     // SIGTERM (as from a scheduler) saves like Ctrl-C, and the exit status says it stopped.
     ok(Command::new("kill").args(["-TERM", &child.id().to_string()]));
@@ -756,14 +758,12 @@ fn interrupt_saves_and_the_run_resumes() {
     let mut bad = good.clone();
     bad[0] ^= 0x10;
     std::fs::write(&loop_bin, &bad).unwrap();
-    let out = rdpg()
-        .args(["train", "--quiet", "--steps", "3000", "--resume"])
-        .arg(&dir)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(err.contains("loop.bin") && err.contains("damaged"), "{err}");
+    fails(
+        rdpg()
+            .args(["train", "--quiet", "--steps", "3000", "--resume"])
+            .arg(&dir),
+        &["loop.bin", "damaged"],
+    );
     std::fs::write(&loop_bin, &good).unwrap();
     // A crash between the two renames of a checkpoint commit leaves `latest.previous` alone:
     // resume puts it back.
@@ -781,16 +781,9 @@ fn interrupt_saves_and_the_run_resumes() {
     let edited = text.replace("gamma = 0.95", "gamma = 0.9");
     assert_ne!(edited, text);
     std::fs::write(&config, &edited).unwrap();
-    let out = rdpg()
-        .args(["train", "--quiet", "--resume"])
-        .arg(&dir)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(
-        err.contains("agent.gamma") && err.contains("edited"),
-        "{err}"
+    fails(
+        rdpg().args(["train", "--quiet", "--resume"]).arg(&dir),
+        &["agent.gamma", "edited"],
     );
     std::fs::write(
         &config,
@@ -834,30 +827,24 @@ fn scanning_recalls_a_cue_older_than_the_window_and_zero_states_cannot() {
 fn a_diverging_run_stops_and_keeps_its_last_good_checkpoint() {
     let dir = tmp("run-diverging");
     let _ = std::fs::remove_dir_all(&dir);
-    let out = rdpg()
-        .args(["train", "--quiet", "--steps", "2000", "--config"])
-        .arg(configs_dir().join("cue-rdpg.toml"))
-        .arg("--out")
-        .arg(&dir)
-        .args([
-            "--set",
-            "agent.critic_l2=1e30",
-            "--set",
-            "run.checkpoint_every=250",
-            "--set",
-            "train.eval_every=1000",
-            "--set",
-            "train.eval_episodes=20",
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(
-        err.contains("training diverged") && err.contains("non-finite"),
-        "{err}"
+    fails(
+        rdpg()
+            .args(["train", "--quiet", "--steps", "2000", "--config"])
+            .arg(configs_dir().join("cue-rdpg.toml"))
+            .arg("--out")
+            .arg(&dir)
+            .args([
+                "--set",
+                "agent.critic_l2=1e30",
+                "--set",
+                "run.checkpoint_every=250",
+                "--set",
+                "train.eval_every=1000",
+                "--set",
+                "train.eval_episodes=20",
+            ]),
+        &["training diverged", "non-finite"],
     );
-    assert!(!err.contains("panicked"), "{err}");
     let latest = dir.join("checkpoints/latest");
     assert!(latest.join("manifest.json").exists());
     let weights = std::fs::read(latest.join("agent/weights.safetensors")).unwrap();
