@@ -33,6 +33,20 @@ fn fails(cmd: &mut Command, needles: &[&str]) -> String {
     err
 }
 
+/// The agent weights of a run's latest checkpoint, as bytes.
+fn latest_weights(run: &std::path::Path) -> Vec<u8> {
+    std::fs::read(run.join("checkpoints/latest/agent/weights.safetensors")).unwrap()
+}
+
+/// A run's `episodes.csv` rows without the wall-clock columns (update_ms, wall).
+fn episode_rows(run: &std::path::Path) -> Vec<String> {
+    std::fs::read_to_string(run.join("episodes.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| l.rsplitn(3, ',').last().unwrap().to_string())
+        .collect()
+}
+
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("rdpg-cli-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -361,18 +375,9 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             .arg(&bad),
         &["metrics.jsonl:1: bad metrics line"],
     );
-    let weights = |d: &PathBuf| {
-        std::fs::read(d.join("checkpoints/latest/agent/weights.safetensors")).unwrap()
-    };
+    let weights = latest_weights;
+    let rows = episode_rows;
     assert_eq!(weights(&one), weights(&two), "resumed run differs");
-    let rows = |d: &PathBuf| -> Vec<String> {
-        std::fs::read_to_string(d.join("episodes.csv"))
-            .unwrap()
-            .lines()
-            // Drop the wall-clock columns (update_ms, wall).
-            .map(|l| l.rsplitn(3, ',').last().unwrap().to_string())
-            .collect()
-    };
     assert_eq!(rows(&one), rows(&two));
 
     // kill -9 right after the first checkpoint (mid-run, mid-write of anything): resume gives
@@ -883,15 +888,10 @@ fn a_walker_run_resumes_bit_identically() {
     train(&one, 1500, false);
     train(&two, 1000, false);
     train(&two, 1500, true);
-    let file = |d: &PathBuf, f: &str| std::fs::read(d.join(f)).unwrap();
-    let w = "checkpoints/latest/agent/weights.safetensors";
-    assert_eq!(file(&one, w), file(&two, w), "resumed walker run differs");
-    let rows = |d: &PathBuf| -> Vec<String> {
-        std::fs::read_to_string(d.join("episodes.csv"))
-            .unwrap()
-            .lines()
-            .map(|l| l.rsplitn(3, ',').last().unwrap().to_string())
-            .collect()
-    };
-    assert_eq!(rows(&one), rows(&two));
+    assert_eq!(
+        latest_weights(&one),
+        latest_weights(&two),
+        "resumed walker run differs"
+    );
+    assert_eq!(episode_rows(&one), episode_rows(&two));
 }
