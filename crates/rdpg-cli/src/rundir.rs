@@ -487,13 +487,7 @@ pub fn machine_description() -> String {
         .and_then(|l| l.split_once(':'))
         .map(|(_, m)| m.trim().to_string());
     let cpus = std::thread::available_parallelism().map_or(0, |n| n.get());
-    let mem_gib = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|m| {
-            let kb = m.lines().find_map(|l| l.strip_prefix("MemTotal:"))?;
-            kb.trim().trim_end_matches("kB").trim().parse::<f64>().ok()
-        })
-        .map(|kb| kb / (1024.0 * 1024.0));
+    let mem_gib = meminfo_bytes("MemTotal").map(|b| b as f64 / (1u64 << 30) as f64);
     let mut s = format!("{}, {cpus} CPUs", std::env::consts::ARCH);
     if let Some(m) = model {
         s += &format!(" ({m})");
@@ -502,6 +496,21 @@ pub fn machine_description() -> String {
         s += &format!(", {g:.0} GiB RAM");
     }
     s
+}
+
+/// A `/proc/meminfo` entry (e.g. `MemTotal`, `MemAvailable`) in bytes; `None` where there
+/// is no such file or entry.
+pub fn meminfo_bytes(key: &str) -> Option<u64> {
+    let m = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kb = m
+        .lines()
+        .find_map(|l| l.strip_prefix(key)?.strip_prefix(':'))?;
+    kb.trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse::<u64>()
+        .ok()
+        .map(|kb| kb * 1024)
 }
 
 /// The test evaluation in [`Summary`].

@@ -169,13 +169,7 @@ fn memory_estimate(exp: &Experiment) -> Result<u64> {
 /// Refuses a run whose [`memory_estimate`] exceeds the memory this machine has available.
 fn check_memory(exp: &Experiment) -> Result<()> {
     let need = memory_estimate(exp)?;
-    let available = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|m| {
-            let kb = m.lines().find_map(|l| l.strip_prefix("MemAvailable:"))?;
-            kb.trim().trim_end_matches("kB").trim().parse::<u64>().ok()
-        })
-        .map(|kb| kb * 1024);
+    let available = crate::rundir::meminfo_bytes("MemAvailable");
     let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
     if let Some(avail) = available.filter(|&a| need > a) {
         bail!(

@@ -4,7 +4,7 @@ use rdpg_envs::{EnvOptions, WalkerReward};
 
 use crate::common::config::TrainConfig;
 use crate::common::trainer::EvalRecord;
-use crate::error::Result;
+use crate::error::{AgentError, Result};
 
 /// A trained policy acting deterministically on one environment (evaluation, recording,
 /// rendering), whatever the algorithm.
@@ -14,6 +14,17 @@ pub trait DeterministicPolicy {
     /// The action in `[-1, 1]^act_dim` for one observation; an observation of the wrong size
     /// or with a non-finite value is an error.
     fn act(&mut self, obs: &[f32]) -> Result<Vec<f32>>;
+}
+
+/// `a` unchanged if every component is finite, else [`AgentError::Diverged`] saying `what`
+/// produced it: the networks hold NaN or inf.
+pub fn check_action_finite(a: Vec<f32>, what: &str) -> Result<Vec<f32>> {
+    if a.iter().any(|x| !x.is_finite()) {
+        return Err(AgentError::Diverged(format!(
+            "{what} is not finite (the weights or state hold NaN or inf)"
+        )));
+    }
+    Ok(a)
 }
 
 /// Maps an action in the agent's `[-1, 1]` space to the env's bounds (clipping first).

@@ -562,13 +562,10 @@ impl DeterministicPolicy for PpoAgent {
                 obs[k]
             )));
         }
-        let a = self.act_deterministic(obs);
-        if a.iter().any(|x| !x.is_finite()) {
-            return Err(AgentError::Diverged(
-                "the policy's mean action is not finite (its weights hold NaN or inf)".into(),
-            ));
-        }
-        Ok(a)
+        crate::common::policy::check_action_finite(
+            self.act_deterministic(obs),
+            "the policy's mean action",
+        )
     }
 }
 

@@ -392,13 +392,7 @@ impl RdpgAgent {
             state.state = s;
             a
         });
-        let a = tensor_to_vec(&a);
-        if a.iter().any(|x| !x.is_finite()) {
-            return Err(AgentError::Diverged(
-                "the actor's action is not finite (its weights or state hold NaN or inf)".into(),
-            ));
-        }
-        Ok(a)
+        crate::common::policy::check_action_finite(tensor_to_vec(&a), "the actor's action")
     }
 
     /// Number of actor parameters (the length of [`RdpgAgent::actor_params`]).
