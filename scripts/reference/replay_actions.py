@@ -3,7 +3,10 @@
 Each line of FILE is `{"seed": N, "return": R, "actions": [[a0, a1, ...], ...]}`. The episodes
 are replayed in order in one env (as `rdpg eval` ran them: a walker keeps its Box2D world across
 resets), each from `env.reset(seed=N)` with the actions as float32 (the dtype rdpg acts in), and
-each Gymnasium return must equal R exactly (the walkers are bit-identical).
+each Gymnasium return must equal R exactly (the walkers are bit-identical). A line with
+`"action_repeat": k` (a run trained with an action repeat) holds each action for k frames, the
+last one until the episode ends; its return, summed by rdpg per k frames, is compared to 1e-9
+relative (the summation order differs, the frames do not).
 
 Usage: .venv-ref/bin/python scripts/reference/replay_actions.py FILE --env BipedalWalker-v3
 Exit status 1 if any episode differs.
@@ -28,15 +31,20 @@ def main() -> int:
         for line in f:
             ep = json.loads(line)
             env.reset(seed=ep["seed"])
+            k = ep.get("action_repeat", 1)
             ret, steps, done = 0.0, 0, False
             for a in ep["actions"]:
                 if done:
                     break
-                _, r, term, trunc, _ = env.step(np.asarray(a, dtype=np.float32))
-                ret += float(r)
+                for _ in range(k):
+                    _, r, term, trunc, _ = env.step(np.asarray(a, dtype=np.float32))
+                    ret += float(r)
+                    done = term or trunc
+                    if done:
+                        break
                 steps += 1
-                done = term or trunc
-            same = done and steps == len(ep["actions"]) and ret == ep["return"]
+            close = ret == ep["return"] if k == 1 else abs(ret - ep["return"]) <= 1e-9 * max(1.0, abs(ret))
+            same = done and steps == len(ep["actions"]) and close
             bad += not same
             print(json.dumps({"seed": ep["seed"], "steps": steps, "rdpg_return": ep["return"],
                               "gymnasium_return": ret, "equal": same}))

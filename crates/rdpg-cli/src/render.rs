@@ -125,12 +125,9 @@ pub fn render_run(
     target: &RenderTarget,
 ) -> Result<(String, EpisodeSummary)> {
     let (exp, mut policy) = run.policy(which)?;
-    // The agent sees the run's observation mask; the reward shown is the stock one.
-    let opts = rdpg_envs::EnvOptions {
-        hide_obs: exp.train.hide_obs.clone(),
-        ..Default::default()
-    };
-    let mut env = rdpg_envs::make_with(&exp.train.env, &opts)?;
+    // The agent sees the run's observation mask at its action rate; the reward shown is the
+    // stock one.
+    let mut env = rdpg_envs::make_with(&exp.train.env, &exp.train.eval_env_options())?;
     let (lo, hi) = (
         env.action_space().low.clone(),
         env.action_space().high.clone(),

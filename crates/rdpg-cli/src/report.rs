@@ -189,7 +189,11 @@ fn table(runs: &[Run]) -> String {
             r.label,
             s.algo,
             s.env,
-            s.train_reward,
+            if s.eval_reward == "stock" {
+                s.train_reward.clone()
+            } else {
+                format!("{} (evaluation: {})", s.train_reward, s.eval_reward)
+            },
             s.steps,
             s.wall_seconds,
             r100,

@@ -449,8 +449,12 @@ pub struct Summary {
     pub algo: String,
     /// Environment id.
     pub env: String,
-    /// The reward the agent learned from (`stock` or `paper`).
+    /// The reward the agent learned from, with every change that shows in a return
+    /// (`stock`, `paper`, `stock, fall -10, action repeat 3`).
     pub train_reward: String,
+    /// The reward of the evaluations: `stock`, with the run's action repeat if any.
+    #[serde(default = "stock")]
+    pub eval_reward: String,
     /// Environment steps done.
     pub steps: u64,
     /// Training episodes finished.
@@ -475,6 +479,11 @@ pub struct Summary {
     /// [`machine_description`].
     #[serde(default)]
     pub machine: Option<String>,
+}
+
+/// The default of [`Summary::eval_reward`] (summaries written before it existed).
+fn stock() -> String {
+    "stock".into()
 }
 
 /// This host in words: architecture, CPU model and count, memory, e.g. "x86_64, 2 CPUs (AMD
@@ -850,7 +859,8 @@ impl RunLog {
             name: exp.name.clone(),
             algo: exp.algo.as_str().into(),
             env: exp.train.env.clone(),
-            train_reward: exp.train.reward.as_str().into(),
+            train_reward: exp.train.reward_label(),
+            eval_reward: exp.train.eval_reward_label(),
             steps,
             episodes: self.episodes,
             wall_seconds: self.wall(),

@@ -330,11 +330,11 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let every = |k: u64, step: u64| step.checked_div(k).map_or(u64::MAX, |q| (q + 1) * k);
     if !a.quiet {
         eprintln!(
-            "training {} ({} on {}, {} reward) for {total} steps -> {}",
+            "training {} ({} on {}, reward: {}) for {total} steps -> {}",
             exp.name,
             exp.algo.as_str(),
             exp.train.env,
-            exp.train.reward.as_str(),
+            exp.train.reward_label(),
             run.root().display()
         );
     }
@@ -504,19 +504,22 @@ pub fn record(a: &RecordArgs) -> Result<()> {
 }
 
 /// The `--actions-out` file of `rdpg eval`: one JSON line per episode, flushed and synced at
-/// the end.
+/// the end. A run with an action repeat `k > 1` lists the agent's actions and says
+/// `"action_repeat": k` (each held for `k` frames, the last one until the episode ends).
 struct ActionsWriter {
     path: PathBuf,
     out: std::io::BufWriter<std::fs::File>,
+    action_repeat: usize,
 }
 
 impl ActionsWriter {
-    fn create(path: &Path) -> Result<Self> {
+    fn create(path: &Path, action_repeat: usize) -> Result<Self> {
         let f = std::fs::File::create(path)
             .with_context(|| format!("cannot create --actions-out file {}", path.display()))?;
         Ok(Self {
             path: path.to_owned(),
             out: std::io::BufWriter::new(f),
+            action_repeat,
         })
     }
 
@@ -527,11 +530,14 @@ impl ActionsWriter {
             #[serde(rename = "return")]
             ret: f64,
             actions: &'a [Vec<f32>],
+            #[serde(skip_serializing_if = "Option::is_none")]
+            action_repeat: Option<usize>,
         }
         let line = Episode {
             seed: e.seed,
             ret: e.ret,
             actions: e.actions,
+            action_repeat: (self.action_repeat > 1).then_some(self.action_repeat),
         };
         serde_json::to_writer(&mut self.out, &line)?;
         self.out.write_all(b"\n")?;
@@ -560,7 +566,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     let r = match &a.actions_out {
         None => evaluate_policy(policy.as_mut(), &exp.train, episodes, seed)?,
         Some(path) => {
-            let mut out = ActionsWriter::create(path)?;
+            let mut out = ActionsWriter::create(path, exp.train.action_repeat)?;
             let r = evaluate_policy_traced(policy.as_mut(), &exp.train, episodes, seed, &mut |e| {
                 out.episode(e)
             })
@@ -576,7 +582,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         env: &'a str,
         episodes: usize,
         first_seed: u64,
-        metric: &'static str,
+        metric: String,
         mean_stock_return: f64,
         std_stock_return: f64,
         success_rate: f64,
@@ -588,7 +594,10 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         env: &exp.train.env,
         episodes,
         first_seed: seed,
-        metric: "deterministic evaluation, stock reward",
+        metric: match exp.train.action_repeat {
+            1 => "deterministic evaluation, stock reward".into(),
+            k => format!("deterministic evaluation, stock reward, action repeat {k}"),
+        },
         mean_stock_return: r.mean_return,
         std_stock_return: r.std_return,
         success_rate: r.success_rate,

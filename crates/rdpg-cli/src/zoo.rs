@@ -222,7 +222,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         algo: exp.algo.as_str().into(),
         env: t.env.clone(),
         training_reward: summary.train_reward.clone(),
-        evaluation_reward: "stock".into(),
+        evaluation_reward: summary.eval_reward.clone(),
         test: ZooTest {
             episodes,
             first_seed: t.test_seed,

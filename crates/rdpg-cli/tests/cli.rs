@@ -618,6 +618,9 @@ fn train_rejects_bad_configs_naming_the_key() {
         ("off_policy.replay_capacity=1000000000000", "GiB available"),
         ("agent.batch_size=100000000", "agent.batch_size"),
         ("train.num_envs=100000", "train.num_envs"),
+        // CueMemory has no falls; a repeat of 0 frames is meaningless.
+        ("train.fall_penalty=-1.0", "train.fall_penalty"),
+        ("train.action_repeat=0", "train.action_repeat"),
     ] {
         let out = rdpg()
             .args(["train", "--quiet", "--config"])

@@ -4,7 +4,8 @@
 //!   Gymnasium 1.4 (same Box2D, same seeds, same observations and rewards).
 //! - [`Pendulum`]: Gymnasium's Pendulum-v1, and its partially observable variant with the
 //!   angular velocity hidden (the standard small memory task).
-//! - [`wrappers`]: time limit (the only source of `truncated`) and observation masks.
+//! - [`wrappers`]: time limit (the only source of `truncated`), observation masks, fall penalty
+//!   and action repeat.
 //! - [`vector`]: N environments stepped on worker threads with auto-reset.
 //! - [`make`]: builds a registered environment by id, with its time limit.
 
@@ -22,7 +23,7 @@ pub use cue::CueMemory;
 pub use pendulum::Pendulum;
 pub use registry::{make, make_with, EnvOptions, ENV_IDS};
 pub use vector::VecEnv;
-pub use wrappers::{ObsMask, TimeLimit};
+pub use wrappers::{ActionRepeat, FallPenalty, ObsMask, TimeLimit};
 
 /// An environment that can draw its current state as a [`rdpg_render::Scene`].
 pub trait Renderable {

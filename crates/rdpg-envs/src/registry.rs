@@ -1,7 +1,7 @@
 //! Environment ids and the [`make`] factory (Gymnasium's `gym.make`).
 
 use crate::bipedal::{BipedalWalker, WalkerConfig, WalkerReward};
-use crate::wrappers::{ObsMask, TimeLimit};
+use crate::wrappers::{ActionRepeat, FallPenalty, ObsMask, TimeLimit};
 use crate::{CueMemory, Pendulum, Renderable};
 use rdpg_core::{Env, EnvError};
 
@@ -26,7 +26,7 @@ impl Renderable for Box<dyn AnyEnv> {
 }
 
 /// Options of [`make_with`]; the defaults give the registered environment unchanged.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct EnvOptions {
     /// Walkers only: which reward `step` pays.
     pub reward: WalkerReward,
@@ -37,6 +37,25 @@ pub struct EnvOptions {
     /// Walkers only: a new Box2D world at every reset, so that each episode depends on its
     /// seed and actions alone ([`WalkerConfig::fresh_world`]); training uses it.
     pub fresh_world: bool,
+    /// Walkers only: the reward of a fall (stock −100, paper −20) becomes this
+    /// ([`FallPenalty`]); `info.stock_reward` keeps the stock one.
+    pub fall_penalty: Option<f64>,
+    /// Each action is held for this many frames ([`ActionRepeat`]; 1: none). The time limit
+    /// still counts frames.
+    pub action_repeat: usize,
+}
+
+impl Default for EnvOptions {
+    fn default() -> Self {
+        Self {
+            reward: WalkerReward::Stock,
+            hide_obs: Vec::new(),
+            max_episode_steps: None,
+            fresh_world: false,
+            fall_penalty: None,
+            action_repeat: 1,
+        }
+    }
 }
 
 /// Builds a registered environment with its time limit (1600 steps for BipedalWalker-v3, 2000
@@ -46,8 +65,13 @@ pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
     make_with(id, &EnvOptions::default())
 }
 
-/// [`make`] with options.
+/// [`make`] with options. Wrapping order, inside out: the env, the observation mask, the time
+/// limit, the fall penalty, the action repeat.
 pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvError> {
+    let walker = id.starts_with("BipedalWalker");
+    if opts.fall_penalty.is_some() && !walker {
+        return Err(EnvError::Config(format!("{id} has no fall penalty option")));
+    }
     let inner: Box<dyn AnyEnv> = match id {
         "BipedalWalker-v3" | "BipedalWalkerHardcore-v3" => {
             Box::new(BipedalWalker::new(WalkerConfig {
@@ -77,7 +101,14 @@ pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvErro
     } else {
         Box::new(ObsMask::hiding(inner, &opts.hide_obs)?)
     };
-    Ok(Box::new(TimeLimit::new(masked, limit)?))
+    let mut env: Box<dyn AnyEnv> = Box::new(TimeLimit::new(masked, limit)?);
+    if let Some(p) = opts.fall_penalty {
+        env = Box::new(FallPenalty::new(env, p)?);
+    }
+    if opts.action_repeat != 1 {
+        env = Box::new(ActionRepeat::new(env, opts.action_repeat)?);
+    }
+    Ok(env)
 }
 
 #[cfg(test)]
@@ -105,6 +136,17 @@ mod tests {
             2
         );
         assert!(matches!(make("CartPole-v1"), Err(EnvError::UnknownId(..))));
+        let falls = EnvOptions {
+            fall_penalty: Some(-1.0),
+            ..Default::default()
+        };
+        assert!(make_with("Pendulum-v1", &falls).is_err());
+        let repeat = EnvOptions {
+            action_repeat: 4,
+            ..falls
+        };
+        let walker = make_with("BipedalWalkerHardcore-v3", &repeat).unwrap();
+        assert_eq!(walker.max_episode_steps(), Some(500));
         let opts = EnvOptions {
             hide_obs: vec![1, 2, 3],
             ..Default::default()

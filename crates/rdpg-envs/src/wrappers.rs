@@ -1,4 +1,6 @@
-//! Wrappers: the time limit (the only source of `truncated`) and observation masks.
+//! Wrappers: the time limit (the only source of `truncated`), observation masks, and the two
+//! training-time changes public Hardcore solutions rely on: a changed fall penalty and action
+//! repeat.
 
 use crate::Renderable;
 use rdpg_core::{BoxSpace, Env, EnvError, EnvInfo, Step};
@@ -166,6 +168,119 @@ impl<E: Renderable> Renderable for ObsMask<E> {
     }
 }
 
+/// Pays `penalty` instead of the inner env's reward on a step that ends the episode without
+/// success (a walker's fall: the hull touches the ground or leaves the course, where the
+/// stock reward is −100 and the paper's −20). Every step reports the stock reward in
+/// `info.stock_reward`, so returns on the stock reward stay measurable.
+pub struct FallPenalty<E> {
+    inner: E,
+    penalty: f64,
+}
+
+impl<E: Env> FallPenalty<E> {
+    /// Wraps `inner`; `penalty` must be finite.
+    pub fn new(inner: E, penalty: f64) -> Result<Self, EnvError> {
+        if !penalty.is_finite() {
+            return Err(EnvError::Config(format!(
+                "fall penalty must be finite, got {penalty}"
+            )));
+        }
+        Ok(Self { inner, penalty })
+    }
+}
+
+impl<E: Env> Env for FallPenalty<E> {
+    fn id(&self) -> &str {
+        self.inner.id()
+    }
+    fn observation_space(&self) -> &BoxSpace {
+        self.inner.observation_space()
+    }
+    fn action_space(&self) -> &BoxSpace {
+        self.inner.action_space()
+    }
+    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        self.inner.reset(seed)
+    }
+    fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
+        let mut s = self.inner.step(action)?;
+        s.info.stock_reward = Some(s.info.stock_reward.unwrap_or(s.reward));
+        if s.terminated && !s.info.success {
+            s.reward = self.penalty;
+        }
+        Ok(s)
+    }
+    fn max_episode_steps(&self) -> Option<usize> {
+        self.inner.max_episode_steps()
+    }
+}
+
+impl<E: Renderable> Renderable for FallPenalty<E> {
+    fn scene(&self) -> rdpg_render::Scene {
+        self.inner.scene()
+    }
+}
+
+/// Holds each action for `repeat` steps of the inner env (frame skip), returning the last
+/// observation and the sum of the rewards (and of the stock rewards); it stops early when the
+/// episode ends. Outside the time limit, so the limit still counts the inner env's frames and
+/// an episode lasts `ceil(limit / repeat)` agent steps at most.
+pub struct ActionRepeat<E> {
+    inner: E,
+    repeat: usize,
+}
+
+impl<E: Env> ActionRepeat<E> {
+    /// Wraps `inner`; `repeat` must be at least 1 (1 changes nothing).
+    pub fn new(inner: E, repeat: usize) -> Result<Self, EnvError> {
+        if repeat == 0 {
+            return Err(EnvError::Config("action repeat must be at least 1".into()));
+        }
+        Ok(Self { inner, repeat })
+    }
+}
+
+impl<E: Env> Env for ActionRepeat<E> {
+    fn id(&self) -> &str {
+        self.inner.id()
+    }
+    fn observation_space(&self) -> &BoxSpace {
+        self.inner.observation_space()
+    }
+    fn action_space(&self) -> &BoxSpace {
+        self.inner.action_space()
+    }
+    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        self.inner.reset(seed)
+    }
+    fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
+        let mut s = self.inner.step(action)?;
+        let (mut reward, mut stock) = (s.reward, s.info.stock_reward);
+        for _ in 1..self.repeat {
+            if s.done() {
+                break;
+            }
+            s = self.inner.step(action)?;
+            reward += s.reward;
+            stock = stock.zip(s.info.stock_reward).map(|(a, b)| a + b);
+        }
+        s.reward = reward;
+        s.info.stock_reward = stock;
+        Ok(s)
+    }
+    fn max_episode_steps(&self) -> Option<usize> {
+        self.inner
+            .max_episode_steps()
+            .map(|n| n.div_ceil(self.repeat))
+    }
+}
+
+impl<E: Renderable> Renderable for ActionRepeat<E> {
+    fn scene(&self) -> rdpg_render::Scene {
+        self.inner.scene()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -196,5 +311,68 @@ mod tests {
         assert!(ObsMask::new(Pendulum::new(false), vec![3]).is_err());
         assert!(ObsMask::new(Pendulum::new(false), vec![0, 0]).is_err());
         assert!(ObsMask::hiding(Pendulum::new(false), &[9]).is_err());
+    }
+
+    #[test]
+    fn action_repeat_sums_rewards_and_keeps_the_frame_limit() {
+        let mut one = TimeLimit::new(Pendulum::new(false), 10).unwrap();
+        let mut three =
+            ActionRepeat::new(TimeLimit::new(Pendulum::new(false), 10).unwrap(), 3).unwrap();
+        assert_eq!(three.max_episode_steps(), Some(4));
+        assert!(ActionRepeat::new(Pendulum::new(false), 0).is_err());
+        one.reset(Some(5)).unwrap();
+        three.reset(Some(5)).unwrap();
+        let mut agent_steps = 0;
+        loop {
+            let a = [0.3 * agent_steps as f32 - 1.0];
+            let s3 = three.step(&a).unwrap();
+            agent_steps += 1;
+            // The same frames one by one: 3, 3, 3, then the 1 frame the limit leaves.
+            let frames = if agent_steps < 4 { 3 } else { 1 };
+            let mut r = 0.0;
+            let mut last = None;
+            for _ in 0..frames {
+                let s = one.step(&a).unwrap();
+                r += s.reward;
+                last = Some(s);
+            }
+            let last = last.unwrap();
+            assert_eq!(s3.obs, last.obs);
+            assert_eq!(s3.reward, r);
+            assert_eq!(
+                (s3.terminated, s3.truncated),
+                (last.terminated, last.truncated)
+            );
+            if s3.done() {
+                break;
+            }
+        }
+        assert_eq!(agent_steps, 4);
+    }
+
+    #[test]
+    fn fall_penalty_replaces_only_the_reward_of_a_fall() {
+        use crate::{BipedalWalker, WalkerConfig};
+        let walker = || BipedalWalker::new(WalkerConfig::default()).unwrap();
+        let mut stock = walker();
+        let mut changed = FallPenalty::new(walker(), -5.0).unwrap();
+        assert!(FallPenalty::new(walker(), f64::NAN).is_err());
+        stock.reset(Some(1)).unwrap();
+        changed.reset(Some(1)).unwrap();
+        // Kick backwards until the hull touches the ground.
+        for _ in 0..1600 {
+            let (a, b) = (
+                stock.step(&[1.0; 4]).unwrap(),
+                changed.step(&[1.0; 4]).unwrap(),
+            );
+            assert_eq!(b.info.stock_reward, Some(a.reward));
+            assert_eq!(a.obs, b.obs);
+            if a.terminated {
+                assert_eq!((a.reward, b.reward), (-100.0, -5.0));
+                return;
+            }
+            assert_eq!(a.reward, b.reward);
+        }
+        panic!("the walker never fell");
     }
 }

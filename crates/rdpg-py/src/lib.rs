@@ -48,6 +48,8 @@ fn options(reward: &str, hide_obs: Vec<usize>, time_limit: bool) -> PyResult<Env
         // TimeLimit wrapper (and honours `max_episode_steps=`).
         max_episode_steps: (!time_limit).then_some(usize::MAX),
         fresh_world: false,
+        fall_penalty: None,
+        action_repeat: 1,
     })
 }
 

@@ -41,6 +41,15 @@ pub struct TrainConfig {
     /// Walkers: reward used for learning (`stock` or `paper`); evaluation always reports the
     /// stock return.
     pub reward: WalkerReward,
+    /// Walkers: the training reward of a fall becomes this (stock −100, paper −20), as public
+    /// Hardcore solutions train (e.g. −10 or 0). Evaluation pays the stock reward. `None`: the
+    /// reward's own.
+    pub fall_penalty: Option<f64>,
+    /// Each agent action is held for this many frames, rewards summed (frame skip; public
+    /// Hardcore solutions use 3). It changes the time scale, so evaluation, rendering and
+    /// recording use it too (the policy acts at that rate); the time limit still counts frames,
+    /// and the step counts (budget, `eval_every`, replay) count agent steps. 1: none.
+    pub action_repeat: usize,
     /// Budget in environment steps (over all environments).
     pub total_steps: u64,
     /// Environments acting in parallel.
@@ -70,6 +79,8 @@ impl Default for TrainConfig {
             env: "PendulumNoVel-v1".into(),
             hide_obs: Vec::new(),
             reward: WalkerReward::Stock,
+            fall_penalty: None,
+            action_repeat: 1,
             total_steps: 50_000,
             num_envs: 1,
             workers: 1,
@@ -96,6 +107,18 @@ impl TrainConfig {
                     rdpg_envs::ENV_IDS.join(", ")
                 ),
             );
+        }
+        let walker = self.env.starts_with("BipedalWalker");
+        if let Some(p) = self.fall_penalty {
+            if !walker {
+                return bad("train.fall_penalty", format!("{} has no falls", self.env));
+            }
+            if !p.is_finite() {
+                return bad("train.fall_penalty", format!("must be finite, got {p}"));
+            }
+        }
+        if self.action_repeat == 0 {
+            return bad("train.action_repeat", "must be at least 1".into());
         }
         if self.total_steps == 0 {
             return bad("train.total_steps", "must be positive".into());
@@ -142,6 +165,92 @@ impl TrainConfig {
             hide_obs: self.hide_obs.clone(),
             max_episode_steps: None,
             fresh_world: false,
+            fall_penalty: self.fall_penalty,
+            action_repeat: self.action_repeat,
         }
+    }
+
+    /// The options of evaluation, rendering and recording: the stock reward, with the run's
+    /// observation mask and action repeat (the agent's view and time scale).
+    pub fn eval_env_options(&self) -> EnvOptions {
+        EnvOptions {
+            reward: WalkerReward::Stock,
+            fall_penalty: None,
+            ..self.env_options()
+        }
+    }
+
+    /// The training reward in words, naming every change from the stock environment that
+    /// shows in a return: `stock`, `paper`, `stock, fall -10, action repeat 3`.
+    pub fn reward_label(&self) -> String {
+        let mut label = self.reward.as_str().to_string();
+        if let Some(p) = self.fall_penalty {
+            label += &format!(", fall {p}");
+        }
+        label + &self.repeat_label()
+    }
+
+    /// The evaluation reward in words: `stock`, or `stock, action repeat 3`.
+    pub fn eval_reward_label(&self) -> String {
+        format!("stock{}", self.repeat_label())
+    }
+
+    fn repeat_label(&self) -> String {
+        match self.action_repeat {
+            1 => String::new(),
+            k => format!(", action repeat {k}"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn labels_name_every_change_that_shows_in_a_return() {
+        let mut c = TrainConfig {
+            env: "BipedalWalkerHardcore-v3".into(),
+            ..Default::default()
+        };
+        assert_eq!(
+            (c.reward_label(), c.eval_reward_label()),
+            ("stock".into(), "stock".into())
+        );
+        c.reward = WalkerReward::Paper;
+        c.fall_penalty = Some(-10.0);
+        c.action_repeat = 3;
+        c.validate().unwrap();
+        assert_eq!(c.reward_label(), "paper, fall -10, action repeat 3");
+        assert_eq!(c.eval_reward_label(), "stock, action repeat 3");
+        // Evaluation keeps the agent's time scale and view, not its reward.
+        let e = c.eval_env_options();
+        assert_eq!(
+            (e.reward, e.fall_penalty, e.action_repeat),
+            (WalkerReward::Stock, None, 3)
+        );
+        let field = |c: &TrainConfig| match c.validate() {
+            Err(AgentError::Config { field, .. }) => field,
+            other => panic!("accepted: {other:?}"),
+        };
+        assert_eq!(
+            field(&TrainConfig {
+                fall_penalty: Some(f64::NAN),
+                ..c.clone()
+            }),
+            "train.fall_penalty"
+        );
+        assert_eq!(
+            field(&TrainConfig {
+                action_repeat: 0,
+                ..c.clone()
+            }),
+            "train.action_repeat"
+        );
+        let pendulum = TrainConfig {
+            fall_penalty: Some(0.0),
+            ..Default::default()
+        };
+        assert_eq!(field(&pendulum), "train.fall_penalty");
     }
 }

@@ -1,7 +1,5 @@
 //! Trained policies acting deterministically, whatever the algorithm, and their evaluation.
 
-use rdpg_envs::{EnvOptions, WalkerReward};
-
 use crate::common::config::TrainConfig;
 use crate::common::trainer::EvalRecord;
 use crate::error::{AgentError, Result};
@@ -72,11 +70,7 @@ pub fn evaluate_policy_traced(
     seed: u64,
     on_episode: &mut dyn FnMut(&EpisodeTrace<'_>) -> Result<()>,
 ) -> Result<EvalRecord> {
-    let opts = EnvOptions {
-        reward: WalkerReward::Stock,
-        ..cfg.env_options()
-    };
-    let mut env = rdpg_envs::make_with(&cfg.env, &opts)?;
+    let mut env = rdpg_envs::make_with(&cfg.env, &cfg.eval_env_options())?;
     let space = env.action_space().clone();
     let mut returns = Vec::with_capacity(episodes);
     let mut successes = 0;

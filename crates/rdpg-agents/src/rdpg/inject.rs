@@ -133,6 +133,7 @@ impl TeacherFile {
                 ),
             })
         };
+        plain_time_and_fall(cfg, "off_policy.injection")?;
         if self.env != cfg.env {
             return mismatch("env", self.env.clone(), cfg.env.clone());
         }
@@ -154,6 +155,22 @@ impl TeacherFile {
     }
 }
 
+/// Teacher files record the env, observation mask and reward only: runs that change the fall
+/// penalty or the action repeat cannot record or inject them (yet).
+fn plain_time_and_fall(cfg: &TrainConfig, field: &'static str) -> Result<()> {
+    if cfg.fall_penalty.is_some() || cfg.action_repeat != 1 {
+        return Err(AgentError::Config {
+            field,
+            reason: format!(
+                "teacher files do not record a fall penalty or an action repeat, and this run \
+                 trains on \"{}\"",
+                cfg.reward_label()
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Runs `policy` (plus Gaussian action noise of `noise_sigma`, 0 for none) for `episodes`
 /// episodes of `cfg`'s environment with the training reward `cfg.reward`, seeds
 /// `seed, seed + 1, ...`, and returns them as a teacher file.
@@ -165,6 +182,7 @@ pub fn record(
     noise_sigma: f64,
     source: &str,
 ) -> Result<TeacherFile> {
+    plain_time_and_fall(cfg, "train")?;
     let opts: EnvOptions = cfg.env_options();
     let mut env = rdpg_envs::make_with(&cfg.env, &opts)?;
     let space = env.action_space().clone();
