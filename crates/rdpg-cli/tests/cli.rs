@@ -225,6 +225,21 @@ fn bench_update_prints_one_json_line_ending_in_updates_per_sec() {
     assert!(
         text.trim().ends_with('}') && text.trim().rsplit_once(",\"updates_per_sec\":").is_some()
     );
+    // A config's networks, here with stored-state burn-in (this once panicked: the synthetic
+    // batches carried no stored states).
+    let out = ok(rdpg()
+        .args([
+            "bench",
+            "update",
+            "--iters",
+            "1",
+            "--threads",
+            "1",
+            "--config",
+        ])
+        .arg(configs_dir().join("walker-rdpg.toml")));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["updates_per_sec"].as_f64().unwrap() > 0.0);
     let bad = rdpg()
         .args(["bench", "update", "--device", "tpu"])
         .output()

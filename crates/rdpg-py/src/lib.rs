@@ -382,6 +382,13 @@ impl Policy {
         self.train.env.clone()
     }
 
+    /// Frames each action was held for in training (`train.action_repeat`; 1: none): the
+    /// policy expects to act at that rate.
+    #[getter]
+    fn action_repeat(&self) -> usize {
+        self.train.action_repeat
+    }
+
     /// The algorithm (`rdpg`, `ddpg`, `ppo`).
     #[getter]
     fn algo(&self) -> &'static str {

@@ -102,7 +102,7 @@ pub fn bench_update_with(
     let mut rng = NpRng::from_seed(0);
     let batches: Vec<SequenceBatch> = (0..4)
         .map(|_| {
-            synthetic_batch(
+            let mut b = synthetic_batch(
                 cfg.batch_size,
                 cfg.scan_len,
                 cfg.opt_len,
@@ -110,7 +110,14 @@ pub fn bench_update_with(
                 act_dim,
                 short,
                 &mut rng,
-            )
+            );
+            // A replay that stores acting-time states hands them over with each window.
+            if cfg.burn_in_from_stored_state {
+                b.state_dim = agent.state_dim();
+                let states = (0..b.n * b.state_dim).map(|_| rng.uniform(-0.5, 0.5) as f32);
+                b.stored_state = Some(states.collect());
+            }
+            b
         })
         .collect();
     for b in batches.iter().take(3) {

@@ -176,7 +176,9 @@ class Policy:
     their state inside); ``act(obs)`` for one observation of a plain Gymnasium env of the
     agent's ``env_id`` (a run trained with hidden observation components drops them itself);
     ``act_batch(obs)`` for ``[n, obs_dim]`` observations of a vector env, each row with its
-    own state (``reset_one(i)`` when sub-env ``i`` starts a new episode).
+    own state (``reset_one(i)`` when sub-env ``i`` starts a new episode). ``action_repeat``
+    is the number of frames each action was held for in training (1 for most agents): step
+    the env that many times with each action, as ``rdpg eval`` does.
     """
 
     def __init__(self, inner: _rdpg.Policy, path: Path):
@@ -184,6 +186,7 @@ class Policy:
         self.path = path
         self.env_id: str = inner.env_id
         self.algo: str = inner.algo
+        self.action_repeat: int = inner.action_repeat
         one = _rdpg.Env(self.env_id)
         self.observation_space = _spaces(*one.observation_bounds())
         self.action_space = _spaces(*one.action_bounds())
