@@ -5,6 +5,36 @@
 use crate::Renderable;
 use rdpg_core::{BoxSpace, Env, EnvError, EnvInfo, Step};
 
+/// `Env` methods a wrapper passes to its `inner` env unchanged, by name.
+macro_rules! delegate {
+    ($($method:ident),+) => { $(delegate!(@one $method);)+ };
+    (@one id) => { fn id(&self) -> &str { self.inner.id() } };
+    (@one observation_space) => {
+        fn observation_space(&self) -> &BoxSpace { self.inner.observation_space() }
+    };
+    (@one action_space) => { fn action_space(&self) -> &BoxSpace { self.inner.action_space() } };
+    (@one reset) => {
+        fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+            self.inner.reset(seed)
+        }
+    };
+    (@one max_episode_steps) => {
+        fn max_episode_steps(&self) -> Option<usize> { self.inner.max_episode_steps() }
+    };
+}
+
+/// Wrappers draw what their inner env draws.
+macro_rules! renderable_via_inner {
+    ($($wrapper:ident),+) => {$(
+        impl<E: Renderable> Renderable for $wrapper<E> {
+            fn scene(&self) -> rdpg_render::Scene {
+                self.inner.scene()
+            }
+        }
+    )+};
+}
+renderable_via_inner!(TimeLimit, ObsMask, FallPenalty, ActionRepeat);
+
 /// Ends episodes after `max_steps` steps with `truncated = true` (Gymnasium's `TimeLimit`).
 /// `terminated` from the inner env passes through unchanged, so a step that both terminates
 /// and hits the limit reports both.
@@ -43,15 +73,7 @@ impl<E: Env> TimeLimit<E> {
 }
 
 impl<E: Env> Env for TimeLimit<E> {
-    fn id(&self) -> &str {
-        self.inner.id()
-    }
-    fn observation_space(&self) -> &BoxSpace {
-        self.inner.observation_space()
-    }
-    fn action_space(&self) -> &BoxSpace {
-        self.inner.action_space()
-    }
+    delegate!(id, observation_space, action_space);
     fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
         self.elapsed = 0;
         let out = self.inner.reset(seed)?;
@@ -72,12 +94,6 @@ impl<E: Env> Env for TimeLimit<E> {
     }
     fn max_episode_steps(&self) -> Option<usize> {
         Some(self.max_steps)
-    }
-}
-
-impl<E: Renderable> Renderable for TimeLimit<E> {
-    fn scene(&self) -> rdpg_render::Scene {
-        self.inner.scene()
     }
 }
 
@@ -139,14 +155,9 @@ impl<E: Env> ObsMask<E> {
 }
 
 impl<E: Env> Env for ObsMask<E> {
-    fn id(&self) -> &str {
-        self.inner.id()
-    }
+    delegate!(id, action_space, max_episode_steps);
     fn observation_space(&self) -> &BoxSpace {
         &self.space
-    }
-    fn action_space(&self) -> &BoxSpace {
-        self.inner.action_space()
     }
     fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
         let (obs, info) = self.inner.reset(seed)?;
@@ -156,15 +167,6 @@ impl<E: Env> Env for ObsMask<E> {
         let mut s = self.inner.step(action)?;
         s.obs = self.mask(std::mem::take(&mut s.obs));
         Ok(s)
-    }
-    fn max_episode_steps(&self) -> Option<usize> {
-        self.inner.max_episode_steps()
-    }
-}
-
-impl<E: Renderable> Renderable for ObsMask<E> {
-    fn scene(&self) -> rdpg_render::Scene {
-        self.inner.scene()
     }
 }
 
@@ -190,18 +192,13 @@ impl<E: Env> FallPenalty<E> {
 }
 
 impl<E: Env> Env for FallPenalty<E> {
-    fn id(&self) -> &str {
-        self.inner.id()
-    }
-    fn observation_space(&self) -> &BoxSpace {
-        self.inner.observation_space()
-    }
-    fn action_space(&self) -> &BoxSpace {
-        self.inner.action_space()
-    }
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        self.inner.reset(seed)
-    }
+    delegate!(
+        id,
+        observation_space,
+        action_space,
+        reset,
+        max_episode_steps
+    );
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
         let mut s = self.inner.step(action)?;
         s.info.stock_reward = Some(s.info.stock_reward.unwrap_or(s.reward));
@@ -209,15 +206,6 @@ impl<E: Env> Env for FallPenalty<E> {
             s.reward = self.penalty;
         }
         Ok(s)
-    }
-    fn max_episode_steps(&self) -> Option<usize> {
-        self.inner.max_episode_steps()
-    }
-}
-
-impl<E: Renderable> Renderable for FallPenalty<E> {
-    fn scene(&self) -> rdpg_render::Scene {
-        self.inner.scene()
     }
 }
 
@@ -241,18 +229,7 @@ impl<E: Env> ActionRepeat<E> {
 }
 
 impl<E: Env> Env for ActionRepeat<E> {
-    fn id(&self) -> &str {
-        self.inner.id()
-    }
-    fn observation_space(&self) -> &BoxSpace {
-        self.inner.observation_space()
-    }
-    fn action_space(&self) -> &BoxSpace {
-        self.inner.action_space()
-    }
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        self.inner.reset(seed)
-    }
+    delegate!(id, observation_space, action_space, reset);
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
         let mut s = self.inner.step(action)?;
         let (mut reward, mut stock) = (s.reward, s.info.stock_reward);
@@ -272,12 +249,6 @@ impl<E: Env> Env for ActionRepeat<E> {
         self.inner
             .max_episode_steps()
             .map(|n| n.div_ceil(self.repeat))
-    }
-}
-
-impl<E: Renderable> Renderable for ActionRepeat<E> {
-    fn scene(&self) -> rdpg_render::Scene {
-        self.inner.scene()
     }
 }
 
