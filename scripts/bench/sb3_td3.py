@@ -5,10 +5,10 @@ configs/walker-td3-zoo.toml (same networks, batch, rates, noise, warm-up, one up
 Trains for ``--steps`` env steps on ``gym.make("BipedalWalker-v3")`` and prints one JSON line
 with the whole-training steps/s after warm-up (the 10k random steps excluded)::
 
-    {"impl":"sb3","sb3":"2.7.0","torch":"2.11.0","threads":1,"steps":N,
+    {"impl":"sb3","sb3":"2.9.2","torch":"2.11.0","threads":1,"steps":N,
      "warmup_steps":10000,"seconds_after_warmup":X,"steps_per_sec_after_warmup":Y}
 
-Usage (needs stable-baselines3 in .venv: pip install stable-baselines3==2.7.0)::
+Usage (needs stable-baselines3 in .venv: pip install stable-baselines3==2.9.2)::
 
     .venv/bin/python scripts/bench/sb3_td3.py --steps 30000 --threads 1
 """

@@ -171,6 +171,14 @@ pub struct RdpgConfig {
     /// Number of intra-op CPU threads libtorch uses (`torch.set_num_threads`); `None` leaves
     /// libtorch's default. This setting is process-wide.
     pub num_threads: Option<usize>,
+    /// Run the second critic of `twin_critic` on a second thread: the two critics' scans,
+    /// window runs, target values and gradients are independent of each other, so the update
+    /// is bit-identical to running them one after the other, while a free core takes the
+    /// second critic's half of the critic work. Meant for `num_threads = 1` (two intra-op
+    /// threads and two critic threads would oversubscribe a 2-core machine). Needs twin
+    /// critics, target networks and the tail-step bootstrap (the targets must be known before
+    /// the behaviour critics run).
+    pub parallel_twins: bool,
     /// Flush subnormal floats to zero in every thread that runs tensor kernels: the trainer's
     /// thread (set when the trainer is built, before any tensor work) and libtorch's worker
     /// threads (which inherit it when libtorch creates them). The environments' physics runs
@@ -218,6 +226,7 @@ impl Default for RdpgConfig {
             scan_method: ScanMethod::Grouped,
             device: DeviceSpec::Auto,
             num_threads: None,
+            parallel_twins: false,
             flush_denormal: true,
         }
     }
@@ -351,6 +360,16 @@ impl RdpgConfig {
                 return Err(bad("target_noise", "clip must be finite and >= 0"));
             }
         }
+        if self.parallel_twins
+            && !(self.twin_critic
+                && self.tau > 0.0
+                && self.critic_target == CriticTarget::TailBootstrap)
+        {
+            return Err(bad(
+                "parallel_twins",
+                "needs twin_critic = true, target networks (tau > 0) and critic_target = \"tail_bootstrap\"",
+            ));
+        }
         if self.num_threads == Some(0) {
             return Err(bad("num_threads", "must be at least 1 when given"));
         }
@@ -453,5 +472,30 @@ mod tests {
             ..Default::default()
         };
         assert!(c.validate().unwrap_err().to_string().contains("trunk"));
+        // parallel_twins: twin critics, targets and the tail bootstrap, each required.
+        let twins = RdpgConfig {
+            parallel_twins: true,
+            twin_critic: true,
+            tau: 0.005,
+            ..Default::default()
+        };
+        twins.validate().unwrap();
+        for bad in [
+            RdpgConfig {
+                twin_critic: false,
+                ..twins.clone()
+            },
+            RdpgConfig {
+                tau: 0.0,
+                ..twins.clone()
+            },
+            RdpgConfig {
+                critic_target: CriticTarget::PerStepTd0,
+                ..twins.clone()
+            },
+        ] {
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.contains("parallel_twins"), "{e}");
+        }
     }
 }

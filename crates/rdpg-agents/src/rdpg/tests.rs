@@ -10,7 +10,7 @@ use super::agent::RdpgAgent;
 use super::bench::synthetic_batch;
 use super::config::{RdpgConfig, ScanMethod, Trunk};
 use super::lstm::RecState;
-use super::update::{actor_loss, critic_loss_from, td_targets, ActorInput};
+use super::update::{actor_loss, critic_loss_from, scan_critic, td_targets, ActorInput};
 use crate::common::tensor::{sorted_vars, tensor_to_vec64 as to_vec64, DeviceSpec};
 use crate::common::UpdateStats;
 
@@ -1366,7 +1366,7 @@ fn actor_sees_the_critic_in_algorithm_1_order() {
         m.critic_opt.zero_grad();
         critic_loss_from(&p, &q_sa[0], &y).backward();
         m.critic_opt.step();
-        let h_new = tch::no_grad(|| m.scan_critic(&m.critics[0], &p));
+        let h_new = tch::no_grad(|| scan_critic(&m.critics[0], &p, m.cfg.scan_method));
         let after = loss_now(&m, &tch::no_grad(|| m.critic_states(&p, &h_new)));
         let by_hand = if updated { after } else { before };
         assert!(
@@ -1446,4 +1446,88 @@ fn feed_forward_bootstrap_reads_the_tail_observation_alone() {
     let (h, c) = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
     assert_eq!(h.size(), [b.n as i64, cfg.opt_len as i64, 0]);
     assert_eq!(c.size(), h.size());
+}
+
+/// `parallel_twins` runs the second critic (scan, target value, gradient) on a second thread:
+/// the updates are the same as on one thread, bit for bit (f32, the trained kind) — every
+/// weight, target weight and optimiser moment, and the reported statistics — for a recurrent
+/// agent with a scan and stored-state burn-in and for a feed-forward one, over updates with and
+/// without the actor's turn (policy delay 2).
+#[test]
+fn parallel_twins_update_bit_for_bit_like_one_thread() {
+    let twin_td3 = |cfg: RdpgConfig| RdpgConfig {
+        twin_critic: true,
+        tau: 0.05,
+        policy_delay: 2,
+        target_noise: Some(super::config::TargetNoise {
+            std: 0.2,
+            clip: 0.5,
+        }),
+        ..cfg
+    };
+    let recurrent = twin_td3(RdpgConfig {
+        burn_in_from_stored_state: true,
+        ..tiny()
+    });
+    let feed_forward = twin_td3(RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![6] },
+        recurrent: false,
+        critic_action_fc: 0,
+        opt_len: 1,
+        update_len: 1,
+        scan_len: 0,
+        ..tiny()
+    });
+    for cfg in [recurrent, feed_forward] {
+        let parallel = RdpgConfig {
+            parallel_twins: true,
+            ..cfg.clone()
+        };
+        let mut one = RdpgAgent::new(cfg.clone(), OBS, ACT, 21).unwrap();
+        let mut two = RdpgAgent::new(parallel, OBS, ACT, 21).unwrap();
+        for k in 0..5 {
+            let mut b = batch(&cfg, 6, 0.5, 100 + k);
+            if cfg.burn_in_from_stored_state {
+                let width = 2 * cfg.actor_hidden;
+                b.state_dim = width;
+                b.stored_state = Some(
+                    (0..b.n * width)
+                        .map(|i| (i as f32 * 0.37).sin() * 0.3)
+                        .collect(),
+                );
+            }
+            let (s1, s2) = (one.update(&b), two.update(&b));
+            assert_eq!(s1.critic_loss, s2.critic_loss, "update {k}: critic loss");
+            assert_eq!(s1.actor_loss, s2.actor_loss, "update {k}: actor loss");
+            assert_eq!(s1.q_mean, s2.q_mean, "update {k}: q mean");
+        }
+        assert_eq!(two.critics.len(), 2, "the second critic came back");
+        let state = |a: &RdpgAgent| -> Vec<(String, Vec<f64>)> {
+            let mut out: Vec<_> = std::iter::once(&a.actor_vs)
+                .chain(&a.critic_vs)
+                .chain(
+                    a.targets
+                        .iter()
+                        .flat_map(|t| std::iter::once(&t.actor_vs).chain(&t.critic_vs)),
+                )
+                .flat_map(sorted_vars)
+                .map(|(n, t)| (n, to_vec64(&t)))
+                .collect();
+            for (n, t) in a
+                .critic_opt
+                .state("critic_opt.")
+                .into_iter()
+                .chain(a.actor_opt.state("actor_opt."))
+            {
+                out.push((n, to_vec64(&t.to_kind(Kind::Double))));
+            }
+            out
+        };
+        let (s1, s2) = (state(&one), state(&two));
+        assert_eq!(s1.len(), s2.len());
+        for ((n1, v1), (n2, v2)) in s1.iter().zip(&s2) {
+            assert_eq!(n1, n2);
+            assert_eq!(v1, v2, "{n1} differs (recurrent: {})", cfg.recurrent);
+        }
+    }
 }

@@ -45,7 +45,7 @@ use serde::{Deserialize, Serialize};
 use tch::Tensor;
 
 use super::agent::RdpgAgent;
-use super::config::CriticTarget;
+use super::config::{CriticTarget, ScanMethod};
 use super::lstm::{scan_state, RecState};
 use super::nets::{Actor, Critic};
 use crate::common::UpdateStats;
@@ -94,24 +94,46 @@ impl RdpgAgent {
         if self.cfg.flush_denormal {
             crate::common::tensor::set_flush_denormal(true);
         }
+        // With `parallel_twins` the second critic and its target leave the agent for the
+        // update: a second thread borrows them phase by phase (scan, target value, gradient).
+        let mut twin = self.cfg.parallel_twins.then(|| self.take_twin());
+        let stats = self.update_with(batch, twin.as_mut());
+        if let Some(t) = twin {
+            self.critics.push(t.critic);
+            if let Some(targets) = &mut self.targets {
+                targets.critics.push(t.target);
+            }
+        }
+        stats
+    }
+
+    /// [`RdpgAgent::update`]'s steps; `twin` holds the second critic when it runs on a second
+    /// thread.
+    fn update_with(&mut self, batch: &SequenceBatch, mut twin: Option<&mut Twin>) -> UpdateStats {
         let started = std::time::Instant::now();
         let mut clock = Clock::new(self.profile.is_some());
         let p = self.prepare(batch);
         clock.lap(|t| &mut t.prepare);
 
         // ---- 1. Scan: h_{-1} for every network, no gradient (paper Eq. (scan)). -------------
-        let sc = self.scan_all(&p);
+        let sc = self.scan_all_with(&p, twin.as_deref_mut());
         clock.lap(|t| &mut t.scan);
 
         // ---- 2. Critic: q along the window (with gradient) and its targets (without). -------
-        let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
-        let critic_loss = q_sa
-            .iter()
-            .map(|q| critic_loss_from(&p, q, &y))
-            .reduce(|a, b| a + b)
-            .expect("at least one critic");
-        self.critic_opt.zero_grad();
-        critic_loss.backward();
+        let (q0, critic_loss, actor_states) = match twin {
+            None => {
+                let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
+                let critic_loss = q_sa
+                    .iter()
+                    .map(|q| critic_loss_from(&p, q, &y))
+                    .reduce(|a, b| a + b)
+                    .expect("at least one critic");
+                self.critic_opt.zero_grad();
+                critic_loss.backward();
+                (q_sa[0].detach(), critic_loss, actor_states)
+            }
+            Some(tw) => self.twin_critic_gradients(&p, &sc, tw, &mut clock),
+        };
         if let Some(c) = self.cfg.grad_clip {
             let _ = self.critic_opt.clip_grad_norm(c);
         }
@@ -135,7 +157,7 @@ impl RdpgAgent {
             let critic_states = match critic_states_old {
                 Some(s) => s,
                 None => tch::no_grad(|| {
-                    let h = self.scan_critic(&self.critics[0], &p);
+                    let h = scan_critic(&self.critics[0], &p, self.cfg.scan_method);
                     self.critic_states(&p, &h)
                 }),
             };
@@ -174,7 +196,7 @@ impl RdpgAgent {
                 });
             }
         }
-        let q_mean = tch::no_grad(|| (&q_sa[0] * &p.mask).sum(self.kind) / p.mask.sum(self.kind));
+        let q_mean = tch::no_grad(|| (&q0 * &p.mask).sum(self.kind) / p.mask.sum(self.kind));
         let stats = UpdateStats {
             critic_loss: critic_loss.double_value(&[]),
             actor_loss: actor_loss_value,
@@ -279,14 +301,7 @@ impl RdpgAgent {
                 .critics
                 .iter()
                 .zip(&sc.target_critics)
-                .map(|(c, h)| {
-                    if c.core.is_recurrent() {
-                        tail_q(p, &critic_window(c, p, h, Some(a_tail)))
-                    } else {
-                        // Feed-forward: Q'(o_tail, a_tail) needs no run along the window.
-                        c.step(&tail_obs(p), a_tail, h).0 // [N]
-                    }
-                })
+                .map(|(c, h)| target_q(c, p, h, a_tail))
                 .collect();
             min_all(&qs)
         })
@@ -315,6 +330,57 @@ impl RdpgAgent {
             None => min_all(&qs.iter().map(|q| tail_q(p, q).detach()).collect::<Vec<_>>()),
         };
         (qs.iter().map(|q| q.narrow(1, 0, p.l)).collect(), q_tail)
+    }
+
+    /// Step 2 with `parallel_twins` (tail-step bootstrap, target networks): critic 0 here,
+    /// critic 1 (`tw`) on a second thread, with the same arithmetic as
+    /// [`RdpgAgent::critic_objective`] followed by one backward pass of the summed loss.
+    /// Zeroes the critics' gradients and back-propagates; returns critic 0's
+    /// `Q(o_i, a_i | h_{i-1})` (`[N, l]`, detached), the summed TD loss and the actor's states
+    /// along the window.
+    fn twin_critic_gradients(
+        &mut self,
+        p: &Prepared,
+        sc: &Scanned,
+        tw: &mut Twin,
+        clock: &mut Clock,
+    ) -> (Tensor, Tensor, Option<(Tensor, Tensor)>) {
+        let ftz = self.cfg.flush_denormal;
+        // 2a: the actor along the window and the (smoothed) bootstrap action, then
+        // Q'(o_tail, a_tail) of each target critic, the second one on the second thread.
+        let (actor_states, mut a_tail) = tch::no_grad(|| self.actor_window(p, sc));
+        if let Some(noise) = self.cfg.target_noise {
+            a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
+        }
+        let t0 = &self.targets.as_ref().expect("validated: targets").critics[0];
+        let main = || tch::no_grad(|| target_q(t0, p, &sc.target_critics[0], &a_tail));
+        let (p1, h1, a1) = (
+            p.shallow_clone(),
+            sc.target_critics[1].shallow_clone(),
+            a_tail.shallow_clone(),
+        );
+        let t1 = &mut tw.target;
+        let side = move || tch::no_grad(|| target_q(t1, &p1, &h1, &a1));
+        let (q0_tail, q1_tail) = on_two_threads(ftz, main, side);
+        let y = tch::no_grad(|| td_targets(p, &q0_tail.minimum(&q1_tail))); // [N, l]
+        clock.lap(|t| &mut t.window_nograd);
+
+        // 2b: each critic's TD loss and its gradient (the gradient of a sum of the two losses
+        // is the pair of their gradients: the networks share no parameter).
+        self.critic_opt.zero_grad();
+        let c0 = &self.critics[0];
+        let (p1, h1, y1) = (
+            p.shallow_clone(),
+            sc.critics[1].shallow_clone(),
+            y.shallow_clone(),
+        );
+        let critic1 = &mut tw.critic;
+        let ((q0, loss0), (_, loss1)) = on_two_threads(
+            ftz,
+            || td_backward(c0, p, &sc.critics[0], &y),
+            move || td_backward(critic1, &p1, &h1, &y1),
+        );
+        (q0, loss0 + loss1, actor_states)
     }
 
     /// The classic RDPG's targets (Heess et al. 2015), per step (call without gradient):
@@ -470,11 +536,39 @@ impl RdpgAgent {
     }
 
     /// Step 1 for every network, without gradient.
+    #[cfg(test)]
     pub(super) fn scan_all(&self, p: &Prepared) -> Scanned {
-        tch::no_grad(|| self.scan_all_inner(p))
+        self.scan_all_with(p, None)
     }
 
-    fn scan_all_inner(&self, p: &Prepared) -> Scanned {
+    /// Step 1; with `twin`, the second critic and its target scan on a second thread (when
+    /// there is something to scan).
+    fn scan_all_with(&self, p: &Prepared, twin: Option<&mut Twin>) -> Scanned {
+        let method = self.cfg.scan_method;
+        let main = || tch::no_grad(|| self.scan_agent(p));
+        let Some(tw) = twin else { return main() };
+        let p1 = p.shallow_clone();
+        let side = move || {
+            tch::no_grad(|| {
+                (
+                    scan_critic(&tw.critic, &p1, method),
+                    scan_critic(&tw.target, &p1, method),
+                )
+            })
+        };
+        let (mut sc, (h1, th1)) = if p.s > 0 && self.critics[0].core.is_recurrent() {
+            on_two_threads(self.cfg.flush_denormal, main, side)
+        } else {
+            (main(), side())
+        };
+        sc.critics.push(h1);
+        sc.target_critics.push(th1);
+        sc
+    }
+
+    /// The scans of the networks the agent holds.
+    fn scan_agent(&self, p: &Prepared) -> Scanned {
+        let method = self.cfg.scan_method;
         let actor_init = match &p.stored {
             Some(st) => st.shallow_clone(),
             None => self.actor.core.zero_state(p.n, self.kind, self.device),
@@ -483,12 +577,15 @@ impl RdpgAgent {
         let critics = self
             .critics
             .iter()
-            .map(|c| self.scan_critic(c, p))
+            .map(|c| scan_critic(c, p, method))
             .collect();
         let (target_actor, target_critics) = match &self.targets {
             Some(t) => (
                 Some(self.scan_actor(&t.actor, p, &actor_init)),
-                t.critics.iter().map(|c| self.scan_critic(c, p)).collect(),
+                t.critics
+                    .iter()
+                    .map(|c| scan_critic(c, p, method))
+                    .collect(),
             ),
             None => (None, Vec::new()),
         };
@@ -500,21 +597,24 @@ impl RdpgAgent {
         }
     }
 
+    /// Moves the second critic and its target out of the agent (`parallel_twins`, which
+    /// validation allows only with twin critics and target networks).
+    fn take_twin(&mut self) -> Twin {
+        let critic = self.critics.pop().expect("validated: twin critics");
+        let target = self
+            .targets
+            .as_mut()
+            .and_then(|t| t.critics.pop())
+            .expect("validated: target networks");
+        Twin { critic, target }
+    }
+
     pub(super) fn scan_actor(&self, actor: &Actor, p: &Prepared, init: &RecState) -> RecState {
         if p.s == 0 || !actor.core.is_recurrent() {
             return init.shallow_clone();
         }
         let x = actor.input_seq(&p.obs_scan);
         scan_state(&actor.core, &x, &p.scan_len, init, self.cfg.scan_method)
-    }
-
-    pub(super) fn scan_critic(&self, critic: &Critic, p: &Prepared) -> RecState {
-        let init = critic.core.zero_state(p.n, self.kind, self.device);
-        if p.s == 0 || !critic.core.is_recurrent() {
-            return init;
-        }
-        let x = critic.input_seq(&p.obs_scan, &p.act_scan);
-        scan_state(&critic.core, &x, &p.scan_len, &init, self.cfg.scan_method)
     }
 
     /// The critic's states before each optimisation step along the replayed actions
@@ -567,6 +667,100 @@ pub(super) struct Prepared {
     pub(super) scan_len: Vec<usize>,
     /// Stored acting-time actor states `[1, N, H]` (when burning in from them).
     pub(super) stored: Option<RecState>,
+}
+
+impl Prepared {
+    /// Second handles to the same tensors, for the second thread of `parallel_twins`.
+    fn shallow_clone(&self) -> Self {
+        Self {
+            n: self.n,
+            s: self.s,
+            l: self.l,
+            obs_scan: self.obs_scan.shallow_clone(),
+            act_scan: self.act_scan.shallow_clone(),
+            obs_win: self.obs_win.shallow_clone(),
+            act_win: self.act_win.shallow_clone(),
+            rew: self.rew.shallow_clone(),
+            mask: self.mask.shallow_clone(),
+            tail_onehot: self.tail_onehot.shallow_clone(),
+            not_term: self.not_term.shallow_clone(),
+            step_not_done: self.step_not_done.shallow_clone(),
+            boot_coef: self.boot_coef.shallow_clone(),
+            disc: self.disc.shallow_clone(),
+            critic_w: self.critic_w.shallow_clone(),
+            actor_w: self.actor_w.shallow_clone(),
+            scan_len: self.scan_len.clone(),
+            stored: self.stored.as_ref().map(RecState::shallow_clone),
+        }
+    }
+}
+
+/// The second critic and its target network while a `parallel_twins` update lends them to a
+/// second thread.
+struct Twin {
+    critic: Critic,
+    target: Critic,
+}
+
+/// Runs `main` on this thread and `side` on a second (scoped) thread that first takes the
+/// update's flush-to-zero mode and libtorch's thread count; a panic on the second thread is
+/// raised again here.
+fn on_two_threads<A, B: Send>(
+    ftz: bool,
+    main: impl FnOnce() -> A,
+    side: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    let threads = tch::get_num_threads();
+    std::thread::scope(|s| {
+        let worker = s.spawn(move || {
+            if ftz {
+                crate::common::tensor::set_flush_denormal(true);
+            }
+            // OpenMP's and MKL's thread counts are per thread: without this a new thread's
+            // first kernel starts a team of one thread per core (measured: the critic step of
+            // walker-td3.toml 2x slower instead of 1.3x faster).
+            tch::set_num_threads(threads);
+            side()
+        });
+        let a = main();
+        let b = worker
+            .join()
+            .unwrap_or_else(|e| std::panic::resume_unwind(e));
+        (a, b)
+    })
+}
+
+/// `h_{-1}` of `critic` from zeros (call without gradient): its scan over the replayed
+/// observation-action pairs, or the zero state when there is nothing to scan.
+pub(super) fn scan_critic(critic: &Critic, p: &Prepared, method: ScanMethod) -> RecState {
+    let init = critic
+        .core
+        .zero_state(p.n, p.obs_win.kind(), p.obs_win.device());
+    if p.s == 0 || !critic.core.is_recurrent() {
+        return init;
+    }
+    let x = critic.input_seq(&p.obs_scan, &p.act_scan);
+    scan_state(&critic.core, &x, &p.scan_len, &init, method)
+}
+
+/// `Q'(o_tail, a_tail)` of target critic `c` from its scanned state `h`, `[N]` (call without
+/// gradient): its run along the window with `a_tail` at the tail position, or for a
+/// feed-forward critic one forward pass on the tail observation.
+pub(super) fn target_q(c: &Critic, p: &Prepared, h: &RecState, a_tail: &Tensor) -> Tensor {
+    if c.core.is_recurrent() {
+        tail_q(p, &critic_window(c, p, h, Some(a_tail)))
+    } else {
+        c.step(&tail_obs(p), a_tail, h).0
+    }
+}
+
+/// One critic's part of step 2b: `Q(o_i, a_i | h_{i-1})` along the window (`[N, l]`), its TD
+/// loss against `y` and the loss's backward pass. Returns both detached.
+fn td_backward(c: &Critic, p: &Prepared, h: &RecState, y: &Tensor) -> (Tensor, Tensor) {
+    let q = critic_window(c, p, h, None);
+    let loss = critic_loss_from(p, &q, y);
+    loss.backward();
+    (q.detach(), loss.detach())
 }
 
 /// `h_{-1}` of every network.
