@@ -152,7 +152,24 @@ pub struct Mlp {
     act: Activation,
 }
 
+/// A second handle on a linear layer's parameters (no copy).
+pub fn linear_handle(l: &nn::Linear) -> nn::Linear {
+    nn::Linear {
+        ws: l.ws.shallow_clone(),
+        bs: l.bs.as_ref().map(Tensor::shallow_clone),
+    }
+}
+
 impl Mlp {
+    /// A second handle on the same parameters (no copy), for another thread.
+    pub fn shallow_clone(&self) -> Self {
+        Self {
+            layers: self.layers.iter().map(linear_handle).collect(),
+            head: self.head.as_ref().map(linear_handle),
+            act: self.act,
+        }
+    }
+
     /// Builds the layers under `p`: `input -> hidden[0] -> ... -> hidden[k-1] (-> head)`,
     /// hidden layers named `{prefix}0`, `{prefix}1`, ... and the output layer `head`.
     pub fn new(

@@ -78,6 +78,17 @@ pub struct Lstm {
 }
 
 impl Lstm {
+    /// A second handle on the same weights (no copy), for another thread.
+    pub fn shallow_clone(&self) -> Self {
+        Self {
+            w_ih: self.w_ih.shallow_clone(),
+            w_hh: self.w_hh.shallow_clone(),
+            b_ih: self.b_ih.shallow_clone(),
+            b_hh: self.b_hh.shallow_clone(),
+            hidden: self.hidden,
+        }
+    }
+
     /// Creates the four weight tensors under `p`.
     pub fn new(p: &nn::Path, in_dim: i64, hidden: i64) -> Self {
         let k = 1.0 / (hidden as f64).sqrt();
@@ -161,6 +172,14 @@ pub enum Core {
 }
 
 impl Core {
+    /// A second handle on the same parameters (no copy), for another thread.
+    pub fn shallow_clone(&self) -> Self {
+        match self {
+            Core::Lstm(l) => Core::Lstm(l.shallow_clone()),
+            Core::Ff(fc, w) => Core::Ff(crate::common::tensor::linear_handle(fc), *w),
+        }
+    }
+
     pub(super) fn new(p: &nn::Path, recurrent: bool, in_dim: i64, hidden: i64) -> Self {
         if recurrent {
             Core::Lstm(Lstm::new(&(p / "lstm"), in_dim, hidden))

@@ -26,15 +26,15 @@ use tch::Tensor;
 
 use super::config::{RdpgConfig, Trunk};
 use super::lstm::{Core, RecState};
-use crate::common::tensor::{Activation, Mlp, HEAD_INIT};
+use crate::common::tensor::{linear_handle, Activation, Mlp, HEAD_INIT};
 
 /// Per-step observation embedding (see the module docs).
 #[derive(Debug)]
 pub enum TrunkNet {
     /// Lidar convolution branch + body FC branch.
     Lidar {
-        /// `Conv1d(1 -> C, k)`.
-        conv: nn::Conv1D,
+        /// `Conv1d(1 -> C, k)` weights `[C, 1, k]` and bias `[C]` (stride 1, no padding).
+        conv: (Tensor, Tensor),
         /// FC on the flattened pooled convolution output.
         lidar_fc: nn::Linear,
         /// FC on the body sensors.
@@ -49,6 +49,26 @@ pub enum TrunkNet {
 }
 
 impl TrunkNet {
+    /// A second handle on the same parameters (no copy), for another thread.
+    pub fn shallow_clone(&self) -> Self {
+        match self {
+            TrunkNet::Lidar {
+                conv,
+                lidar_fc,
+                body_fc,
+                body_dim,
+                lidar_dim,
+            } => TrunkNet::Lidar {
+                conv: (conv.0.shallow_clone(), conv.1.shallow_clone()),
+                lidar_fc: linear_handle(lidar_fc),
+                body_fc: linear_handle(body_fc),
+                body_dim: *body_dim,
+                lidar_dim: *lidar_dim,
+            },
+            TrunkNet::Mlp(m) => TrunkNet::Mlp(m.shallow_clone()),
+        }
+    }
+
     /// Builds the trunk for observations of size `obs_dim`.
     pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64) -> Self {
         match &cfg.trunk {
@@ -56,7 +76,8 @@ impl TrunkNet {
                 let lidar_dim = cfg.lidar_dim as i64;
                 let ch = cfg.lidar_channels as i64;
                 let k = cfg.lidar_kernel as i64;
-                let conv = nn::conv1d(p / "lidar_conv", 1, ch, k, Default::default());
+                let c = nn::conv1d(p / "lidar_conv", 1, ch, k, Default::default());
+                let conv = (c.ws, c.bs.expect("a convolution with bias"));
                 let pooled = (lidar_dim - k + 1) / 2;
                 let lidar_fc = nn::linear(
                     p / "lidar_fc",
@@ -102,8 +123,8 @@ impl TrunkNet {
             } => {
                 let body = obs.narrow(1, 0, *body_dim); // [N, 14]
                 let lidar = obs.narrow(1, *body_dim, *lidar_dim).unsqueeze(1); // [N, 1, 10]
-                let l = conv
-                    .forward(&lidar) // [N, C, 10 - k + 1]
+                let l = lidar
+                    .conv1d(&conv.0, Some(&conv.1), [1], [0], [1], 1) // [N, C, 10 - k + 1]
                     .relu()
                     .max_pool1d([2], [2], [0], [1], false) // [N, C, (10 - k + 1) / 2]
                     .flatten(1, 2); // [N, C * P]
@@ -153,6 +174,15 @@ pub struct Actor {
 }
 
 impl Actor {
+    /// A second handle on the same parameters (no copy), for another thread.
+    pub fn shallow_clone(&self) -> Self {
+        Self {
+            trunk: self.trunk.shallow_clone(),
+            core: self.core.shallow_clone(),
+            head: linear_handle(&self.head),
+        }
+    }
+
     /// Builds the actor's variables under `p`.
     pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64, act_dim: i64) -> Self {
         let trunk = TrunkNet::new(&(p / "trunk"), cfg, obs_dim);
@@ -201,6 +231,17 @@ pub struct Critic {
 }
 
 impl Critic {
+    /// A second handle on the same parameters (no copy), for another thread: gradients of
+    /// its outputs accumulate into the same parameters' gradients.
+    pub fn shallow_clone(&self) -> Self {
+        Self {
+            trunk: self.trunk.shallow_clone(),
+            act_fc: self.act_fc.as_ref().map(linear_handle),
+            core: self.core.shallow_clone(),
+            head: linear_handle(&self.head),
+        }
+    }
+
     /// Builds the critic's variables under `p`.
     pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64, act_dim: i64) -> Self {
         let af = cfg.critic_action_fc as i64;

@@ -1501,7 +1501,6 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
             assert_eq!(s1.actor_loss, s2.actor_loss, "update {k}: actor loss");
             assert_eq!(s1.q_mean, s2.q_mean, "update {k}: q mean");
         }
-        assert_eq!(two.critics.len(), 2, "the second critic came back");
         let state = |a: &RdpgAgent| -> Vec<(String, Vec<f64>)> {
             let mut out: Vec<_> = std::iter::once(&a.actor_vs)
                 .chain(&a.critic_vs)

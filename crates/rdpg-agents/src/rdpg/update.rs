@@ -94,45 +94,32 @@ impl RdpgAgent {
         if self.cfg.flush_denormal {
             crate::common::tensor::set_flush_denormal(true);
         }
-        // With `parallel_twins` the second critic and its target leave the agent for the
-        // update: a second thread borrows them phase by phase (scan, target value, gradient).
-        let mut twin = self.cfg.parallel_twins.then(|| self.take_twin());
-        let stats = self.update_with(batch, twin.as_mut());
-        if let Some(t) = twin {
-            self.critics.push(t.critic);
-            if let Some(targets) = &mut self.targets {
-                targets.critics.push(t.target);
-            }
-        }
-        stats
-    }
-
-    /// [`RdpgAgent::update`]'s steps; `twin` holds the second critic when it runs on a second
-    /// thread.
-    fn update_with(&mut self, batch: &SequenceBatch, mut twin: Option<&mut Twin>) -> UpdateStats {
         let started = std::time::Instant::now();
         let mut clock = Clock::new(self.profile.is_some());
         let p = self.prepare(batch);
         clock.lap(|t| &mut t.prepare);
 
         // ---- 1. Scan: h_{-1} for every network, no gradient (paper Eq. (scan)). -------------
-        let sc = self.scan_all_with(&p, twin.as_deref_mut());
+        let sc = if self.cfg.parallel_twins {
+            self.scan_all_parallel(&p)
+        } else {
+            self.scan_all(&p)
+        };
         clock.lap(|t| &mut t.scan);
 
         // ---- 2. Critic: q along the window (with gradient) and its targets (without). -------
-        let (q0, critic_loss, actor_states) = match twin {
-            None => {
-                let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
-                let critic_loss = q_sa
-                    .iter()
-                    .map(|q| critic_loss_from(&p, q, &y))
-                    .reduce(|a, b| a + b)
-                    .expect("at least one critic");
-                self.critic_opt.zero_grad();
-                critic_loss.backward();
-                (q_sa[0].detach(), critic_loss, actor_states)
-            }
-            Some(tw) => self.twin_critic_gradients(&p, &sc, tw, &mut clock),
+        let (q0, critic_loss, actor_states) = if self.cfg.parallel_twins {
+            self.twin_critic_gradients(&p, &sc, &mut clock)
+        } else {
+            let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
+            let critic_loss = q_sa
+                .iter()
+                .map(|q| critic_loss_from(&p, q, &y))
+                .reduce(|a, b| a + b)
+                .expect("at least one critic");
+            self.critic_opt.zero_grad();
+            critic_loss.backward();
+            (q_sa[0].detach(), critic_loss, actor_states)
         };
         if let Some(c) = self.cfg.grad_clip {
             let _ = self.critic_opt.clip_grad_norm(c);
@@ -332,53 +319,68 @@ impl RdpgAgent {
         (qs.iter().map(|q| q.narrow(1, 0, p.l)).collect(), q_tail)
     }
 
-    /// Step 2 with `parallel_twins` (tail-step bootstrap, target networks): critic 0 here,
-    /// critic 1 (`tw`) on a second thread, with the same arithmetic as
-    /// [`RdpgAgent::critic_objective`] followed by one backward pass of the summed loss.
-    /// Zeroes the critics' gradients and back-propagates; returns critic 0's
-    /// `Q(o_i, a_i | h_{i-1})` (`[N, l]`, detached), the summed TD loss and the actor's states
-    /// along the window.
+    /// Step 2 with `parallel_twins` (tail-step bootstrap, target networks), with the same
+    /// arithmetic as [`RdpgAgent::critic_objective`] followed by one backward pass of the
+    /// summed loss, in three two-thread phases: the target actor's bootstrap action here and
+    /// the behaviour actor's states along the window there; `Q'(o_tail, a_tail)` of target
+    /// critic 0 here and 1 there; critic 0's TD loss and backward pass here and critic 1's
+    /// there (the gradient of the summed loss is the pair of their gradients: the critics share
+    /// no parameter). Zeroes the critics' gradients and back-propagates; returns critic 0's
+    /// `Q(o_i, a_i | h_{i-1})` (`[N, l]`, detached), the summed TD loss and the actor's states.
     fn twin_critic_gradients(
         &mut self,
         p: &Prepared,
         sc: &Scanned,
-        tw: &mut Twin,
         clock: &mut Clock,
     ) -> (Tensor, Tensor, Option<(Tensor, Tensor)>) {
         let ftz = self.cfg.flush_denormal;
-        // 2a: the actor along the window and the (smoothed) bootstrap action, then
-        // Q'(o_tail, a_tail) of each target critic, the second one on the second thread.
-        let (actor_states, mut a_tail) = tch::no_grad(|| self.actor_window(p, sc));
+        let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+        let (mut a_tail, actor_states) = {
+            let t = self.targets.as_ref().expect("validated: target networks");
+            let h = sc.target_actor.as_ref().expect("scanned with the targets");
+            let main = || tch::no_grad(|| tail_action(&t.actor, p, h));
+            if need_states {
+                let (actor, p1, h1) = (
+                    self.actor.shallow_clone(),
+                    p.shallow_clone(),
+                    sc.actor.shallow_clone(),
+                );
+                let side = move || tch::no_grad(|| actor_states(&actor, &p1, &h1));
+                let (a_tail, states) = on_two_threads(ftz, main, side);
+                (a_tail, Some(states))
+            } else {
+                (main(), None)
+            }
+        };
         if let Some(noise) = self.cfg.target_noise {
             a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
         }
-        let t0 = &self.targets.as_ref().expect("validated: targets").critics[0];
-        let main = || tch::no_grad(|| target_q(t0, p, &sc.target_critics[0], &a_tail));
-        let (p1, h1, a1) = (
+        let t = self.targets.as_ref().expect("validated: target networks");
+        let (t1, p1, h1, a1) = (
+            t.critics[1].shallow_clone(),
             p.shallow_clone(),
             sc.target_critics[1].shallow_clone(),
             a_tail.shallow_clone(),
         );
-        let t1 = &mut tw.target;
-        let side = move || tch::no_grad(|| target_q(t1, &p1, &h1, &a1));
-        let (q0_tail, q1_tail) = on_two_threads(ftz, main, side);
+        let (q0_tail, q1_tail) = on_two_threads(
+            ftz,
+            || tch::no_grad(|| target_q(&t.critics[0], p, &sc.target_critics[0], &a_tail)),
+            move || tch::no_grad(|| target_q(&t1, &p1, &h1, &a1)),
+        );
         let y = tch::no_grad(|| td_targets(p, &q0_tail.minimum(&q1_tail))); // [N, l]
         clock.lap(|t| &mut t.window_nograd);
 
-        // 2b: each critic's TD loss and its gradient (the gradient of a sum of the two losses
-        // is the pair of their gradients: the networks share no parameter).
         self.critic_opt.zero_grad();
-        let c0 = &self.critics[0];
-        let (p1, h1, y1) = (
+        let (c1, p1, h1, y1) = (
+            self.critics[1].shallow_clone(),
             p.shallow_clone(),
             sc.critics[1].shallow_clone(),
             y.shallow_clone(),
         );
-        let critic1 = &mut tw.critic;
         let ((q0, loss0), (_, loss1)) = on_two_threads(
             ftz,
-            || td_backward(c0, p, &sc.critics[0], &y),
-            move || td_backward(critic1, &p1, &h1, &y1),
+            || td_backward(&self.critics[0], p, &sc.critics[0], &y),
+            move || td_backward(&c1, &p1, &h1, &y1),
         );
         (q0, loss0 + loss1, actor_states)
     }
@@ -536,85 +538,80 @@ impl RdpgAgent {
     }
 
     /// Step 1 for every network, without gradient.
-    #[cfg(test)]
     pub(super) fn scan_all(&self, p: &Prepared) -> Scanned {
-        self.scan_all_with(p, None)
-    }
-
-    /// Step 1; with `twin`, the second critic and its target scan on a second thread (when
-    /// there is something to scan).
-    fn scan_all_with(&self, p: &Prepared, twin: Option<&mut Twin>) -> Scanned {
         let method = self.cfg.scan_method;
-        let main = || tch::no_grad(|| self.scan_agent(p));
-        let Some(tw) = twin else { return main() };
-        let p1 = p.shallow_clone();
-        let side = move || {
-            tch::no_grad(|| {
-                (
-                    scan_critic(&tw.critic, &p1, method),
-                    scan_critic(&tw.target, &p1, method),
-                )
-            })
-        };
-        let (mut sc, (h1, th1)) = if p.s > 0 && self.critics[0].core.is_recurrent() {
-            on_two_threads(self.cfg.flush_denormal, main, side)
-        } else {
-            (main(), side())
-        };
-        sc.critics.push(h1);
-        sc.target_critics.push(th1);
-        sc
-    }
-
-    /// The scans of the networks the agent holds.
-    fn scan_agent(&self, p: &Prepared) -> Scanned {
-        let method = self.cfg.scan_method;
-        let actor_init = match &p.stored {
-            Some(st) => st.shallow_clone(),
-            None => self.actor.core.zero_state(p.n, self.kind, self.device),
-        };
-        let actor = self.scan_actor(&self.actor, p, &actor_init);
-        let critics = self
-            .critics
-            .iter()
-            .map(|c| scan_critic(c, p, method))
-            .collect();
-        let (target_actor, target_critics) = match &self.targets {
-            Some(t) => (
-                Some(self.scan_actor(&t.actor, p, &actor_init)),
+        let actor_init = self.actor_init(p);
+        tch::no_grad(|| Scanned {
+            actor: scan_actor(&self.actor, p, &actor_init, method),
+            critics: self
+                .critics
+                .iter()
+                .map(|c| scan_critic(c, p, method))
+                .collect(),
+            target_actor: self
+                .targets
+                .as_ref()
+                .map(|t| scan_actor(&t.actor, p, &actor_init, method)),
+            target_critics: self.targets.as_ref().map_or_else(Vec::new, |t| {
                 t.critics
                     .iter()
                     .map(|c| scan_critic(c, p, method))
-                    .collect(),
-            ),
-            None => (None, Vec::new()),
-        };
+                    .collect()
+            }),
+        })
+    }
+
+    /// Step 1 with `parallel_twins`: actor, critic 0 and target critic 0 here; critic 1, its
+    /// target and the target actor on a second thread (when there is a scan to run).
+    fn scan_all_parallel(&self, p: &Prepared) -> Scanned {
+        if p.s == 0 || !self.actor.core.is_recurrent() {
+            return self.scan_all(p);
+        }
+        let method = self.cfg.scan_method;
+        let t = self.targets.as_ref().expect("validated: target networks");
+        let actor_init = self.actor_init(p);
+        let (c1, t1, ta, p1, init1) = (
+            self.critics[1].shallow_clone(),
+            t.critics[1].shallow_clone(),
+            t.actor.shallow_clone(),
+            p.shallow_clone(),
+            actor_init.shallow_clone(),
+        );
+        let ((actor, h0, th0), (h1, th1, h_ta)) = on_two_threads(
+            self.cfg.flush_denormal,
+            || {
+                tch::no_grad(|| {
+                    (
+                        scan_actor(&self.actor, p, &actor_init, method),
+                        scan_critic(&self.critics[0], p, method),
+                        scan_critic(&t.critics[0], p, method),
+                    )
+                })
+            },
+            move || {
+                tch::no_grad(|| {
+                    (
+                        scan_critic(&c1, &p1, method),
+                        scan_critic(&t1, &p1, method),
+                        scan_actor(&ta, &p1, &init1, method),
+                    )
+                })
+            },
+        );
         Scanned {
             actor,
-            critics,
-            target_actor,
-            target_critics,
+            critics: vec![h0, h1],
+            target_actor: Some(h_ta),
+            target_critics: vec![th0, th1],
         }
     }
 
-    /// Moves the second critic and its target out of the agent (`parallel_twins`, which
-    /// validation allows only with twin critics and target networks).
-    fn take_twin(&mut self) -> Twin {
-        let critic = self.critics.pop().expect("validated: twin critics");
-        let target = self
-            .targets
-            .as_mut()
-            .and_then(|t| t.critics.pop())
-            .expect("validated: target networks");
-        Twin { critic, target }
-    }
-
-    pub(super) fn scan_actor(&self, actor: &Actor, p: &Prepared, init: &RecState) -> RecState {
-        if p.s == 0 || !actor.core.is_recurrent() {
-            return init.shallow_clone();
+    /// The actor scans' initial state: the stored acting-time state, or zeros.
+    fn actor_init(&self, p: &Prepared) -> RecState {
+        match &p.stored {
+            Some(st) => st.shallow_clone(),
+            None => self.actor.core.zero_state(p.n, self.kind, self.device),
         }
-        let x = actor.input_seq(&p.obs_scan);
-        scan_state(&actor.core, &x, &p.scan_len, init, self.cfg.scan_method)
     }
 
     /// The critic's states before each optimisation step along the replayed actions
@@ -695,13 +692,6 @@ impl Prepared {
     }
 }
 
-/// The second critic and its target network while a `parallel_twins` update lends them to a
-/// second thread.
-struct Twin {
-    critic: Critic,
-    target: Critic,
-}
-
 /// Runs `main` on this thread and `side` on a second (scoped) thread that first takes the
 /// update's flush-to-zero mode and libtorch's thread count; a panic on the second thread is
 /// raised again here.
@@ -728,6 +718,28 @@ fn on_two_threads<A, B: Send>(
             .unwrap_or_else(|e| std::panic::resume_unwind(e));
         (a, b)
     })
+}
+
+/// `h_{-1}` of `actor` from `init` (call without gradient): its scan over the replayed
+/// observations, or `init` when there is nothing to scan.
+pub(super) fn scan_actor(
+    actor: &Actor,
+    p: &Prepared,
+    init: &RecState,
+    method: ScanMethod,
+) -> RecState {
+    if p.s == 0 || !actor.core.is_recurrent() {
+        return init.shallow_clone();
+    }
+    let x = actor.input_seq(&p.obs_scan);
+    scan_state(&actor.core, &x, &p.scan_len, init, method)
+}
+
+/// The recurrent actor's states before each optimisation step (`[N, l, H]` each), from its
+/// scanned state `h` along the window (call without gradient).
+fn actor_states(actor: &Actor, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
+    let (_, hb, cb, _) = actor.core.stepwise(&actor.input_seq(&p.obs_win), h);
+    (hb.narrow(1, 0, p.l), cb.narrow(1, 0, p.l))
 }
 
 /// `h_{-1}` of `critic` from zeros (call without gradient): its scan over the replayed
