@@ -30,7 +30,16 @@ fn runtime_err(e: impl std::fmt::Display) -> PyErr {
     PyRuntimeError::new_err(e.to_string())
 }
 
-fn options(reward: &str, hide_obs: Vec<usize>, time_limit: bool) -> PyResult<EnvOptions> {
+/// The environment options of the Python constructors. With `action_repeat > 1` the env keeps
+/// its own time limit whatever `time_limit` says: the limit counts frames (as in `rdpg train`),
+/// so Gymnasium's TimeLimit, which counts agent steps, never fires first.
+fn options(
+    reward: &str,
+    hide_obs: Vec<usize>,
+    time_limit: bool,
+    fall_penalty: Option<f64>,
+    action_repeat: usize,
+) -> PyResult<EnvOptions> {
     let reward = match reward {
         "stock" => WalkerReward::Stock,
         "paper" => WalkerReward::Paper,
@@ -46,10 +55,10 @@ fn options(reward: &str, hide_obs: Vec<usize>, time_limit: bool) -> PyResult<Env
         hide_obs,
         // Without its own limit the env is Gymnasium's raw class: `gymnasium.make` adds the
         // TimeLimit wrapper (and honours `max_episode_steps=`).
-        max_episode_steps: (!time_limit).then_some(usize::MAX),
+        max_episode_steps: (!time_limit && action_repeat == 1).then_some(usize::MAX),
         fresh_world: false,
-        fall_penalty: None,
-        action_repeat: 1,
+        fall_penalty,
+        action_repeat,
     })
 }
 
@@ -87,8 +96,10 @@ fn check_action(a: &[f32], what: &str) -> PyResult<()> {
     }
 }
 
-/// One environment: `Env(id, reward="stock", hide_obs=[], time_limit=True)`; with
-/// `time_limit=False` it never truncates (Gymnasium's `TimeLimit` wrapper does).
+/// One environment: `Env(id, reward="stock", hide_obs=[], time_limit=True, fall_penalty=None,
+/// action_repeat=1)`; with `time_limit=False` it never truncates (Gymnasium's `TimeLimit`
+/// wrapper does), unless `action_repeat > 1` (then the env's own limit counts frames).
+/// `fall_penalty`: the reward of a fall (the stock reward stays in `step`'s last value).
 #[pyclass(module = "rdpg._rdpg")]
 pub struct Env {
     /// Behind a mutex only to make the class `Sync`; methods take `&mut self`.
@@ -104,10 +115,21 @@ impl Env {
 #[pymethods]
 impl Env {
     #[new]
-    #[pyo3(signature = (id, reward = "stock", hide_obs = Vec::new(), time_limit = true))]
-    fn new(id: &str, reward: &str, hide_obs: Vec<usize>, time_limit: bool) -> PyResult<Self> {
+    #[pyo3(signature = (
+        id, reward = "stock", hide_obs = Vec::new(), time_limit = true, fall_penalty = None,
+        action_repeat = 1
+    ))]
+    fn new(
+        id: &str,
+        reward: &str,
+        hide_obs: Vec<usize>,
+        time_limit: bool,
+        fall_penalty: Option<f64>,
+        action_repeat: usize,
+    ) -> PyResult<Self> {
+        let opts = options(reward, hide_obs, time_limit, fall_penalty, action_repeat)?;
         Ok(Self {
-            env: Mutex::new(make(id, &options(reward, hide_obs, time_limit)?)?),
+            env: Mutex::new(make(id, &opts)?),
         })
     }
 
@@ -162,7 +184,8 @@ impl Env {
 }
 
 /// `n` environments stepped in parallel on Rust threads, with next-step autoreset:
-/// `VecEnv(id, num_envs, reward="stock", hide_obs=[], threads=None)`.
+/// `VecEnv(id, num_envs, reward="stock", hide_obs=[], threads=None, fall_penalty=None,
+/// action_repeat=1)`.
 ///
 /// The environments live on `threads` persistent workers (`rdpg_envs::VecEnv`, at most one per
 /// env; default: one per core). Autoreset follows Gymnasium's default
@@ -184,22 +207,27 @@ pub struct VecEnv {
 #[pymethods]
 impl VecEnv {
     #[new]
-    #[pyo3(signature = (id, num_envs, reward = "stock", hide_obs = Vec::new(), threads = None))]
+    #[pyo3(signature = (
+        id, num_envs, reward = "stock", hide_obs = Vec::new(), threads = None,
+        fall_penalty = None, action_repeat = 1
+    ))]
     fn new(
         id: &str,
         num_envs: usize,
         reward: &str,
         hide_obs: Vec<usize>,
         threads: Option<usize>,
+        fall_penalty: Option<f64>,
+        action_repeat: usize,
     ) -> PyResult<Self> {
         if num_envs == 0 {
             return Err(value_err("num_envs must be at least 1"));
         }
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let workers = threads.unwrap_or(cores).clamp(1, num_envs);
-        let inner =
-            rdpg_envs::VecEnv::make(id, &options(reward, hide_obs, true)?, num_envs, workers)
-                .map_err(|e| value_err(format!("{id}: {e}")))?;
+        let opts = options(reward, hide_obs, true, fall_penalty, action_repeat)?;
+        let inner = rdpg_envs::VecEnv::make(id, &opts, num_envs, workers)
+            .map_err(|e| value_err(format!("{id}: {e}")))?;
         Ok(Self {
             obs_dim: inner.obs_dim(),
             act_dim: inner.act_dim(),

@@ -77,6 +77,48 @@ def test_options_and_rendering():
     assert frame.shape == (400, 600, 3) and frame.dtype == np.uint8 and frame.std() > 0
 
 
+def test_hardcore_training_options_as_kwargs():
+    """``action_repeat`` and ``fall_penalty`` (as in ``rdpg train``): the same frames as holding
+    each action for 3 steps of the plain env, the stock rewards summed in
+    ``info["stock_reward"]``, the reward the same but for a fall's -100 replaced by the
+    penalty; the time limit counts frames."""
+    k = 3
+    ours = gym.make("rdpg/BipedalWalkerHardcore-v3", action_repeat=k, fall_penalty=-1.0)
+    plain = gym.make("rdpg/BipedalWalkerHardcore-v3")
+    oa, _ = ours.reset(seed=5)
+    ob, _ = plain.reset(seed=5)
+    assert np.array_equal(oa, ob)
+    rng = np.random.default_rng(0)
+    for step in range(2000):
+        a = rng.uniform(-1, 1, 4).astype(np.float32)
+        oa, ra, terma, trunca, info = ours.step(a)
+        stock = 0.0
+        for _ in range(k):
+            ob, rb, termb, truncb, _ = plain.step(a)
+            stock += rb
+            if termb or truncb:
+                break
+        assert np.array_equal(oa, ob), f"step {step}"
+        assert (terma, trunca) == (termb, truncb)
+        assert info["stock_reward"] == pytest.approx(stock, rel=1e-12)
+        fell = terma and rb == -100.0
+        assert ra == pytest.approx(stock + 100.0 - 1.0 if fell else stock, rel=1e-12)
+        if terma or trunca:
+            break
+    assert terma and fell, "random actions should make the walker fall"
+    env = gym.make("rdpg/Pendulum-v1", action_repeat=k)
+    env.reset(seed=0)
+    steps, done = 0, False
+    while not done:
+        _, _, term, trunc, _ = env.step(np.zeros(1, np.float32))
+        steps, done = steps + 1, term or trunc
+    assert trunc and steps == -(-200 // k)
+    vec = rdpg.make_vec("BipedalWalkerHardcore-v3", 2, action_repeat=k, fall_penalty=-1.0)
+    vec.reset(seed=5)
+    with pytest.raises(ValueError, match="action repeat"):
+        gym.make("rdpg/BipedalWalker-v3", action_repeat=0)
+
+
 def test_vector_env_equals_gymnasium_sync_vector_env_with_next_step_autoreset():
     n = 3
     ours = gym.make_vec("rdpg/BipedalWalker-v3", num_envs=n, vectorization_mode="vector_entry_point")

@@ -71,7 +71,11 @@ class RdpgEnv(gym.Env):
     """One rdpg environment with Gymnasium's API.
 
     Keyword options: ``reward="paper"`` (the walkers' reward of the paper), ``hide_obs=[...]``
-    (observation components removed, e.g. velocities), ``render_mode="rgb_array"``.
+    (observation components removed, e.g. velocities), ``render_mode="rgb_array"``, and the
+    hardcore training options of ``rdpg train``: ``fall_penalty=-1.0`` (the reward of a fall;
+    ``info["stock_reward"]`` keeps the stock one) and ``action_repeat=3`` (each action held for
+    3 frames, rewards summed; the time limit then counts frames, as in training, so an episode
+    truncates after ``ceil(limit / 3)`` steps).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -82,12 +86,15 @@ class RdpgEnv(gym.Env):
         render_mode: str | None = None,
         reward: str = "stock",
         hide_obs: list[int] | tuple[int, ...] = (),
+        fall_penalty: float | None = None,
+        action_repeat: int = 1,
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r}: rdpg envs render 'rgb_array' only")
         # The time limit is Gymnasium's TimeLimit wrapper (added by gymnasium.make from the
-        # registration, or by max_episode_steps=), as for Gymnasium's own walkers.
-        self._env = _rdpg.Env(env_id, reward, list(hide_obs), False)
+        # registration, or by max_episode_steps=), as for Gymnasium's own walkers; with an
+        # action repeat the env's own limit counts frames and ends the episode first.
+        self._env = _rdpg.Env(env_id, reward, list(hide_obs), False, fall_penalty, action_repeat)
         self.env_id = env_id
         self.render_mode = render_mode
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": _FPS.get(env_id, 30)}
@@ -132,9 +139,13 @@ class RdpgVectorEnv(VectorEnv):
         reward: str = "stock",
         hide_obs: list[int] | tuple[int, ...] = (),
         threads: int | None = None,
+        fall_penalty: float | None = None,
+        action_repeat: int = 1,
         **_: Any,
     ):
-        self._env = _rdpg.VecEnv(env_id, num_envs, reward, list(hide_obs), threads)
+        self._env = _rdpg.VecEnv(
+            env_id, num_envs, reward, list(hide_obs), threads, fall_penalty, action_repeat
+        )
         one = _rdpg.Env(env_id, reward, list(hide_obs))
         self.num_envs = num_envs
         self.single_observation_space = _spaces(*one.observation_bounds())
