@@ -651,6 +651,20 @@ fn train_rejects_bad_configs_naming_the_key() {
         assert!(!err.contains("panicked"), "{set}: {err}");
     }
     assert!(!tmp("never").join("config.toml").exists());
+    // Teacher files do not record the previous-action input.
+    let out = rdpg()
+        .args(["train", "--quiet", "--config"])
+        .arg(configs_dir().join("cue-rdpg-injection.toml"))
+        .args(["--out"])
+        .arg(tmp("never-injected"))
+        .args(["--set", "train.prev_action_obs=true"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("previous action"),
+        "{err}"
+    );
 
     // A start that fails after validation (no CUDA here, or a bad device) leaves no run
     // directory behind, so the retry is not blocked.

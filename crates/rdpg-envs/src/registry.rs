@@ -1,7 +1,7 @@
 //! Environment ids and the [`make`] factory (Gymnasium's `gym.make`).
 
 use crate::bipedal::{BipedalWalker, WalkerConfig, WalkerReward};
-use crate::wrappers::{ActionRepeat, FallPenalty, ObsMask, TimeLimit};
+use crate::wrappers::{ActionRepeat, FallPenalty, ObsMask, PrevAction, TimeLimit};
 use crate::{CueMemory, Pendulum, Renderable};
 use rdpg_core::{Env, EnvError};
 
@@ -43,6 +43,9 @@ pub struct EnvOptions {
     /// Each action is held for this many frames ([`ActionRepeat`]; 1: none). The time limit
     /// still counts frames.
     pub action_repeat: usize,
+    /// The previous action in front of the observation ([`PrevAction`]), outermost: the
+    /// agent's previous action, whatever the action repeat.
+    pub prev_action: bool,
 }
 
 impl Default for EnvOptions {
@@ -54,6 +57,7 @@ impl Default for EnvOptions {
             fresh_world: false,
             fall_penalty: None,
             action_repeat: 1,
+            prev_action: false,
         }
     }
 }
@@ -66,7 +70,7 @@ pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
 }
 
 /// [`make`] with options. Wrapping order, inside out: the env, the observation mask, the time
-/// limit, the fall penalty, the action repeat.
+/// limit, the fall penalty, the action repeat, the previous action.
 pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvError> {
     let walker = id.starts_with("BipedalWalker");
     if opts.fall_penalty.is_some() && !walker {
@@ -107,6 +111,9 @@ pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvErro
     }
     if opts.action_repeat != 1 {
         env = Box::new(ActionRepeat::new(env, opts.action_repeat)?);
+    }
+    if opts.prev_action {
+        env = Box::new(PrevAction::new(env));
     }
     Ok(env)
 }

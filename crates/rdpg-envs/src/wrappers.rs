@@ -1,6 +1,6 @@
-//! Wrappers: the time limit (the only source of `truncated`), observation masks, and the two
-//! training-time changes public Hardcore solutions rely on: a changed fall penalty and action
-//! repeat.
+//! Wrappers: the time limit (the only source of `truncated`), observation masks, the two
+//! training-time changes public Hardcore solutions rely on (a changed fall penalty and action
+//! repeat) and the previous action in the observation (an input recurrent agents commonly read).
 
 use crate::Renderable;
 use rdpg_core::{BoxSpace, Env, EnvError, EnvInfo, Step};
@@ -33,7 +33,7 @@ macro_rules! renderable_via_inner {
         }
     )+};
 }
-renderable_via_inner!(TimeLimit, ObsMask, FallPenalty, ActionRepeat);
+renderable_via_inner!(TimeLimit, ObsMask, FallPenalty, ActionRepeat, PrevAction);
 
 /// Ends episodes after `max_steps` steps with `truncated = true` (Gymnasium's `TimeLimit`).
 /// `terminated` from the inner env passes through unchanged, so a step that both terminates
@@ -252,6 +252,52 @@ impl<E: Env> Env for ActionRepeat<E> {
     }
 }
 
+/// Puts the previous action in front of the observation, `[a_{t-1}, o_t]` (zeros after a
+/// reset), clipped to the action space as the env applies it: the input recurrent off-policy
+/// agents commonly read next to the observation (R2D2; Ni et al. 2022). In front, so that a
+/// lidar trunk still finds the lidar values at the end of the observation.
+pub struct PrevAction<E> {
+    inner: E,
+    space: BoxSpace,
+}
+
+impl<E: Env> PrevAction<E> {
+    /// Wraps `inner`.
+    pub fn new(inner: E) -> Self {
+        let (a, o) = (inner.action_space(), inner.observation_space());
+        let space = BoxSpace::new(
+            a.low.iter().chain(&o.low).copied().collect(),
+            a.high.iter().chain(&o.high).copied().collect(),
+        );
+        Self { inner, space }
+    }
+}
+
+impl<E: Env> Env for PrevAction<E> {
+    delegate!(id, action_space, max_episode_steps);
+    fn observation_space(&self) -> &BoxSpace {
+        &self.space
+    }
+    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        let (obs, info) = self.inner.reset(seed)?;
+        let mut out = vec![0.0; self.inner.action_space().dim()];
+        out.extend(obs);
+        Ok((out, info))
+    }
+    fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
+        let mut s = self.inner.step(action)?;
+        let space = self.inner.action_space();
+        let mut out: Vec<f32> = action
+            .iter()
+            .zip(space.low.iter().zip(&space.high))
+            .map(|(&x, (&lo, &hi))| x.clamp(lo, hi))
+            .collect();
+        out.extend(s.obs);
+        s.obs = out;
+        Ok(s)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -345,5 +391,24 @@ mod tests {
             assert_eq!(a.reward, b.reward);
         }
         panic!("the walker never fell");
+    }
+
+    #[test]
+    fn prev_action_prepends_the_clipped_previous_action() {
+        let mut plain = Pendulum::new(false);
+        let mut env = PrevAction::new(Pendulum::new(false));
+        assert_eq!(env.observation_space().dim(), 4);
+        assert_eq!(env.observation_space().low[0], -2.0);
+        let (o, _) = env.reset(Some(3)).unwrap();
+        let (p, _) = plain.reset(Some(3)).unwrap();
+        assert_eq!(o, [vec![0.0], p].concat());
+        for a in [0.5f32, -7.0, 1.25] {
+            let s = env.step(&[a]).unwrap();
+            let t = plain.step(&[a]).unwrap();
+            assert_eq!(s.obs, [vec![a.clamp(-2.0, 2.0)], t.obs].concat());
+            assert_eq!(s.reward, t.reward);
+        }
+        let (o, _) = env.reset(Some(4)).unwrap();
+        assert_eq!(o[0], 0.0, "a reset clears the previous action");
     }
 }

@@ -59,6 +59,7 @@ fn options(
         fresh_world: false,
         fall_penalty,
         action_repeat,
+        prev_action: false,
     })
 }
 
@@ -327,6 +328,9 @@ pub struct Policy {
     train: TrainConfig,
     /// One copy per environment of the batched form (each keeps its own recurrent state).
     copies: Vec<Box<dyn DeterministicPolicy>>,
+    /// Each copy's previous action (zeros at an episode's start), put in front of its
+    /// observation when the run trained with `prev_action_obs`.
+    prev: Vec<Vec<f32>>,
     obs_dim: usize,
     act_low: Vec<f32>,
     act_high: Vec<f32>,
@@ -337,18 +341,31 @@ impl Policy {
         agent_dir(&self.dir)
     }
 
-    fn keep(&self, obs: &[f32]) -> Vec<f32> {
-        obs.iter()
-            .enumerate()
-            .filter(|(i, _)| !self.train.hide_obs.contains(i))
-            .map(|(_, &x)| x)
-            .collect()
+    /// Copy `i`'s action for a full observation of the env: the run's observation mask and
+    /// previous-action input applied as in training; remembers the action.
+    fn act_one(&mut self, i: usize, obs: &[f32]) -> PyResult<Vec<f32>> {
+        let mut view = if self.train.prev_action_obs {
+            self.prev[i].clone()
+        } else {
+            Vec::new()
+        };
+        view.extend(
+            obs.iter()
+                .enumerate()
+                .filter(|(k, _)| !self.train.hide_obs.contains(k))
+                .map(|(_, &x)| x),
+        );
+        let a = self.copies[i].act(&view).map_err(value_err)?;
+        let a = to_env_action(&a, &self.act_low, &self.act_high);
+        self.prev[i].clone_from(&a);
+        Ok(a)
     }
 
     fn ensure_copies(&mut self, n: usize) -> PyResult<()> {
         while self.copies.len() < n {
             let p = rdpg_agents::load_policy(self.algo, &self.agent_dir()).map_err(value_err)?;
             self.copies.push(p);
+            self.prev.push(vec![0.0; self.act_low.len()]);
         }
         Ok(())
     }
@@ -399,6 +416,7 @@ impl Policy {
             algo,
             train,
             copies: Vec::new(),
+            prev: Vec::new(),
         };
         p.ensure_copies(1)?;
         Ok(p)
@@ -425,19 +443,16 @@ impl Policy {
 
     /// Starts new episodes: zeroes every recurrent state.
     fn reset(&mut self) {
-        for c in &mut self.copies {
+        for (c, prev) in self.copies.iter_mut().zip(&mut self.prev) {
             c.begin_episode();
+            prev.fill(0.0);
         }
     }
 
     /// The action (float32 bytes, within the env's bounds) for one observation.
     fn act<'py>(&mut self, py: Python<'py>, obs: &[u8]) -> PyResult<Bound<'py, PyBytes>> {
-        let o = self.keep(&f32s(obs, self.obs_dim, "observation")?);
-        let a = self.copies[0].act(&o).map_err(value_err)?;
-        Ok(f32_bytes(
-            py,
-            &to_env_action(&a, &self.act_low, &self.act_high),
-        ))
+        let a = self.act_one(0, &f32s(obs, self.obs_dim, "observation")?)?;
+        Ok(f32_bytes(py, &a))
     }
 
     /// Actions for `n` environments (`[n, obs_dim]` float32 bytes), each with its own state.
@@ -451,9 +466,7 @@ impl Policy {
         self.ensure_copies(n)?;
         let mut out = Vec::with_capacity(n * self.act_low.len());
         for (i, row) in all.chunks_exact(self.obs_dim).enumerate() {
-            let o = self.keep(row);
-            let a = self.copies[i].act(&o).map_err(value_err)?;
-            out.extend(to_env_action(&a, &self.act_low, &self.act_high));
+            out.extend(self.act_one(i, row)?);
         }
         Ok(f32_bytes(py, &out))
     }
@@ -462,6 +475,7 @@ impl Policy {
     fn reset_one(&mut self, i: usize) -> PyResult<()> {
         self.ensure_copies(i + 1)?;
         self.copies[i].begin_episode();
+        self.prev[i].fill(0.0);
         Ok(())
     }
 }

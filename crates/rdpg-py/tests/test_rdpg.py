@@ -187,14 +187,32 @@ def trained_run(tmp_path_factory) -> Path:
     return out
 
 
-def _policy_dirs(trained_run: Path) -> list[Path]:
+@pytest.fixture(scope="module")
+def prev_action_run(tmp_path_factory) -> Path:
+    """A tiny recurrent run on PendulumNoVel-v1 (actions in [-2, 2]) that reads its previous
+    action in front of each observation (`train.prev_action_obs`)."""
+    out = tmp_path_factory.mktemp("runs") / "prev-action"
+    subprocess.run(
+        [str(_rdpg_binary()), "train", "--quiet", "--config",
+         str(ROOT / "configs/memory-rdpg.toml"), "--out", str(out), "--steps", "2200",
+         "--set", "train.prev_action_obs=true", "--set", "off_policy.warmup_steps=1000",
+         "--set", "train.eval_every=1100", "--set", "train.eval_episodes=2",
+         "--set", "train.test_episodes=2", "--set", "agent.parallel_twins=false"],
+        check=True, capture_output=True,
+    )
+    return out
+
+
+def _policy_dirs(*runs: Path) -> list[Path]:
     zoo = ROOT / "zoo"
     entries = sorted(p for p in zoo.iterdir() if (p / "agent").is_dir()) if zoo.is_dir() else []
-    return [trained_run] + entries
+    return list(runs) + entries
 
 
-def test_a_policy_in_a_plain_gymnasium_loop_scores_what_rdpg_eval_reports(trained_run):
-    for run in _policy_dirs(trained_run):
+def test_a_policy_in_a_plain_gymnasium_loop_scores_what_rdpg_eval_reports(
+    trained_run, prev_action_run
+):
+    for run in _policy_dirs(trained_run, prev_action_run):
         policy = rdpg.Policy.load(run)
         episodes, seed = 3, 3_000_000
         out = subprocess.run(

@@ -50,6 +50,11 @@ pub struct TrainConfig {
     /// recording use it too (the policy acts at that rate); the time limit still counts frames,
     /// and the step counts (budget, `eval_every`, replay) count agent steps. 1: none.
     pub action_repeat: usize,
+    /// The agent's previous action in front of each observation, `[a_{t-1}, o_t]` (zeros after
+    /// a reset): the input recurrent off-policy agents commonly read next to the observation
+    /// (R2D2; Ni et al. 2022). Part of the agent's view, so evaluation, rendering and
+    /// recording use it too; the Python `Policy` adds it itself.
+    pub prev_action_obs: bool,
     /// Budget in environment steps (over all environments).
     pub total_steps: u64,
     /// Environments acting in parallel.
@@ -81,6 +86,7 @@ impl Default for TrainConfig {
             reward: WalkerReward::Stock,
             fall_penalty: None,
             action_repeat: 1,
+            prev_action_obs: false,
             total_steps: 50_000,
             num_envs: 1,
             workers: 1,
@@ -167,11 +173,13 @@ impl TrainConfig {
             fresh_world: false,
             fall_penalty: self.fall_penalty,
             action_repeat: self.action_repeat,
+            prev_action: self.prev_action_obs,
         }
     }
 
     /// The options of evaluation, rendering and recording: the stock reward, with the run's
-    /// observation mask and action repeat (the agent's view and time scale).
+    /// observation mask, previous-action input and action repeat (the agent's view and time
+    /// scale).
     pub fn eval_env_options(&self) -> EnvOptions {
         EnvOptions {
             reward: WalkerReward::Stock,

@@ -133,7 +133,7 @@ impl TeacherFile {
                 ),
             })
         };
-        plain_time_and_fall(cfg, "off_policy.injection")?;
+        plain_env_options(cfg, "off_policy.injection")?;
         if self.env != cfg.env {
             return mismatch("env", self.env.clone(), cfg.env.clone());
         }
@@ -156,15 +156,21 @@ impl TeacherFile {
 }
 
 /// Teacher files record the env, observation mask and reward only: runs that change the fall
-/// penalty or the action repeat cannot record or inject them (yet).
-fn plain_time_and_fall(cfg: &TrainConfig, field: &'static str) -> Result<()> {
-    if cfg.fall_penalty.is_some() || cfg.action_repeat != 1 {
+/// penalty, the action repeat or the observation (previous action) cannot record or inject
+/// them (yet).
+pub(super) fn plain_env_options(cfg: &TrainConfig, field: &'static str) -> Result<()> {
+    if cfg.fall_penalty.is_some() || cfg.action_repeat != 1 || cfg.prev_action_obs {
         return Err(AgentError::Config {
             field,
             reason: format!(
-                "teacher files do not record a fall penalty or an action repeat, and this run \
-                 trains on \"{}\"",
-                cfg.reward_label()
+                "teacher files do not record a fall penalty, an action repeat or the previous \
+                 action in the observation, and this run trains on \"{}\"{}",
+                cfg.reward_label(),
+                if cfg.prev_action_obs {
+                    " with the previous action in the observation"
+                } else {
+                    ""
+                }
             ),
         });
     }
@@ -182,7 +188,7 @@ pub fn record(
     noise_sigma: f64,
     source: &str,
 ) -> Result<TeacherFile> {
-    plain_time_and_fall(cfg, "train")?;
+    plain_env_options(cfg, "train")?;
     let opts: EnvOptions = cfg.env_options();
     let mut env = rdpg_envs::make_with(&cfg.env, &opts)?;
     let space = env.action_space().clone();

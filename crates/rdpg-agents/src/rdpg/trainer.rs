@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use super::agent::{ActorState, RdpgAgent};
 use super::config::RdpgConfig;
-use super::inject::TeacherFile;
+use super::inject::{plain_env_options, TeacherFile};
 use super::off_policy::{ExplorationConfig, OffPolicyConfig, PerturbSchedule};
 use crate::common::checkpoint::{
     ckpt_err, read_bin, read_json, write_bin, write_json, Header, TrainerKind,
@@ -113,6 +113,10 @@ impl OffPolicyTrainer {
             field: "replay",
             reason: e.to_string(),
         })?;
+        if off.injection.is_some() {
+            // Before any teacher file is read: runs it cannot describe are refused as such.
+            plain_env_options(&cfg, "off_policy.injection")?;
+        }
         for path in off.injection.iter().flat_map(|i| &i.teachers) {
             let teacher = TeacherFile::load(path)?;
             teacher.check_fits(&cfg, path)?;
