@@ -36,6 +36,11 @@
 //!
 //! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
 //! critic steps every time.
+//!
+//! With `parallel_twins` steps 1 and 2 run the second critic's share (its scan and its
+//! target's, the target actor's scan, the behaviour actor's states, target critic 1's value,
+//! critic 1's forward and backward pass) on a second thread, with the same arithmetic
+//! (`twin_critic_gradients`): the result is bit-identical.
 
 use std::time::Instant;
 
