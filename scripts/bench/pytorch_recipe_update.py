@@ -14,8 +14,9 @@ file and builds the same networks and update, op for op as rdpg-agents runs it:
   tail slot, the minimum of the two;
 * 2b. tail-step bootstrap targets, each critic along the window with gradient, the summed
   weighted squared TD loss, one backward, Adam;
-* 3. on every ``policy_delay``-th update: critic 0 rescanned after its step and its states
-  along the window (cell steps), the actor loss from every step's detached previous state in
+* 3. on every ``policy_delay``-th update: critic 0's states along the window (cell steps) from
+  its scan redone after its step (``actor_uses_updated_critic``, the default) or from its scan
+  before the step, the actor loss from every step's detached previous state in
   one batched LSTM cell over ``N * l`` rows through the frozen critic (one cell step), Adam;
   soft update of the targets (``lerp_``).
 
@@ -164,7 +165,9 @@ def build(cfg, obs_dim, act_dim):
         if actor_turn:
             c0 = critics[0]
             with torch.no_grad():
-                h0 = c0.lstm(c0.trunk(torch.cat([o_scan, a_scan], -1)), zc)[1]
+                # Algorithm 1's order rescans the stepped critic; otherwise its scan before the
+                # step (whose Adam step then waits until after the actor's backward pass).
+                h0 = c0.lstm(c0.trunk(torch.cat([o_scan, a_scan], -1)), zc)[1] if updated_critic else h_c[0]
                 hcb, ccb = stepwise(c0.lstm, c0.trunk(torch.cat([o_win[:, :l], a_win], -1)), h0[0][0], h0[1][0])
             tick("critic_rescan")
             c0.requires_grad_(False)
