@@ -184,7 +184,8 @@ fn check_memory(exp: &Experiment) -> Result<()> {
     Ok(())
 }
 
-/// What a resume may change in a run's `config.toml`: the budget and the checkpoint cadence.
+/// What a resume may change in a run's `config.toml`: the budget, the checkpoint cadence and
+/// `agent.parallel_twins` (a speed setting that changes no number; the trainer takes it).
 /// Any other edit since the checkpoint (`then`) would be ignored by the restored trainer while
 /// reports showed it as in effect, so it is refused, naming the keys.
 fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Result<()> {
@@ -196,6 +197,9 @@ fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Resul
         if let Some(toml::Value::Table(run)) = t.get_mut("run") {
             run.remove("checkpoint_every");
         }
+        if let Some(toml::Value::Table(agent)) = t.get_mut("agent") {
+            agent.remove("parallel_twins");
+        }
         Ok(t)
     };
     let mut changed = Vec::new();
@@ -203,7 +207,8 @@ fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Resul
     if !changed.is_empty() {
         bail!(
             "{} was edited since the last checkpoint ({}): a resumed run keeps the settings it \
-             was started with, except train.total_steps (or --steps) and run.checkpoint_every. \
+             was started with, except train.total_steps (or --steps), run.checkpoint_every \
+             and agent.parallel_twins. \
              Undo the edit, or start a new run from the edited file with --config",
             path.display(),
             changed.join(", ")
@@ -286,8 +291,12 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             std::fs::write(run.config(), exp.to_toml()?)
                 .with_context(|| format!("writing {}", run.config().display()))?;
         }
-        // config.toml holds the budget (set by --steps or edited): the trainer follows it.
+        // config.toml holds the budget (set by --steps or edited): the trainer follows it,
+        // and the speed setting parallel_twins.
         trainer.set_total_steps(exp.train.total_steps);
+        if let Some(agent) = &exp.agent {
+            trainer.set_parallel_twins(agent.parallel_twins)?;
+        }
         (run, exp, trainer, lock)
     } else {
         let path = a.config.as_ref().expect("clap requires --config");

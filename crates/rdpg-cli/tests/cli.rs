@@ -890,7 +890,8 @@ fn a_diverging_run_stops_and_keeps_its_last_good_checkpoint() {
 
 /// A walker run stopped mid-episode resumes to exactly the uninterrupted run: training
 /// episodes are rebuilt from their seed and actions (each in a fresh Box2D world; Gymnasium's
-/// walker, which keeps its world, would replay them differently after the first).
+/// walker, which keeps its world, would replay them differently after the first). The resume
+/// also switches `agent.parallel_twins` off (an edit a resume accepts: it changes no number).
 #[test]
 fn a_walker_run_resumes_bit_identically() {
     let cfg = configs_dir().join("walker-td3.toml");
@@ -919,7 +920,17 @@ fn a_walker_run_resumes_bit_identically() {
     }
     train(&one, 1500, false);
     train(&two, 1000, false);
+    let config = two.join("config.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    let edited = text.replace("parallel_twins = true", "parallel_twins = false");
+    assert_ne!(
+        edited, text,
+        "walker-td3.toml runs the twin critics in parallel"
+    );
+    std::fs::write(&config, edited).unwrap();
     train(&two, 1500, true);
+    let snapshot = std::fs::read_to_string(two.join("checkpoints/latest/config.toml")).unwrap();
+    assert!(snapshot.contains("parallel_twins = false"), "{snapshot}");
     assert_eq!(
         latest_weights(&one),
         latest_weights(&two),

@@ -111,6 +111,11 @@ pub trait Trainer {
     /// Raises (or lowers) the budget in environment steps, e.g. to continue a finished run.
     fn set_total_steps(&mut self, total: u64);
 
+    /// Switches `RdpgConfig::parallel_twins` (a speed setting that changes no number) for the
+    /// rest of the run, e.g. when a resumed run gets a free core. An error for trainers
+    /// without twin critics when `on`.
+    fn set_parallel_twins(&mut self, on: bool) -> Result<()>;
+
     /// The run's settings.
     fn config(&self) -> &TrainConfig;
 }

@@ -17,7 +17,7 @@ use crate::common::checkpoint::{
     ckpt_err, read_bin, read_json, write_bin, write_json, Header, TrainerKind,
 };
 use crate::common::{evaluate_policy, Collector, EvalRecord, TrainConfig, TrainObserver, Trainer};
-use crate::error::Result;
+use crate::error::{AgentError, Result};
 
 /// The steps collected since the last update phase, `len` vector steps of `n` environments,
 /// step-major (`[len, n, ...]`).
@@ -262,6 +262,16 @@ impl Trainer for PpoTrainer {
 
     fn set_total_steps(&mut self, total: u64) {
         self.cfg.total_steps = total;
+    }
+
+    fn set_parallel_twins(&mut self, on: bool) -> Result<()> {
+        if on {
+            return Err(AgentError::Config {
+                field: "agent.parallel_twins",
+                reason: "PPO has no twin critics".into(),
+            });
+        }
+        Ok(())
     }
 
     fn config(&self) -> &TrainConfig {

@@ -296,6 +296,18 @@ impl RdpgAgent {
         &self.cfg
     }
 
+    /// Switches `parallel_twins` (the second critic on a second thread; the updates stay
+    /// bit-identical). Validated like the configuration.
+    pub fn set_parallel_twins(&mut self, on: bool) -> Result<()> {
+        let cfg = RdpgConfig {
+            parallel_twins: on,
+            ..self.cfg.clone()
+        };
+        cfg.validate()?;
+        self.cfg = cfg;
+        Ok(())
+    }
+
     /// Observation size.
     pub fn obs_dim(&self) -> usize {
         self.obs_dim

@@ -494,6 +494,10 @@ impl Trainer for OffPolicyTrainer {
         self.cfg.total_steps = total;
     }
 
+    fn set_parallel_twins(&mut self, on: bool) -> Result<()> {
+        self.agent.set_parallel_twins(on)
+    }
+
     fn config(&self) -> &TrainConfig {
         &self.cfg
     }
