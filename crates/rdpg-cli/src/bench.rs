@@ -168,6 +168,15 @@ pub struct UpdateBenchArgs {
     /// `--device` still apply.
     #[arg(long, conflicts_with_all = ["scan", "batch", "opt"])]
     config: Option<std::path::PathBuf>,
+    /// Time the update of a stopped training run as it stands (its agent, optimiser state and
+    /// replay from `RUN/checkpoints/latest`, or from RUN itself when it is a checkpoint): one
+    /// thread, two threads and, where the agent allows, `parallel_twins`, interleaved over
+    /// `--rounds` rounds of `--iters` updates. One JSON line per mode.
+    #[arg(long, conflicts_with_all = ["config", "scan", "batch", "opt", "threads", "device"])]
+    run: Option<std::path::PathBuf>,
+    /// Rounds over the modes with `--run`.
+    #[arg(long, default_value_t = 3, requires = "run")]
+    rounds: usize,
     /// Scan length s (steps before the optimisation part, no gradient).
     #[arg(long, default_value_t = 24)]
     scan: usize,
@@ -197,13 +206,74 @@ struct UpdateBenchLine {
     opt: usize,
     iters: usize,
     threads: usize,
+    #[serde(flatten)]
+    ms: PhaseMs,
+    updates_per_sec: f64,
+}
+
+/// Milliseconds per update in each phase of the update.
+#[derive(Serialize)]
+struct PhaseMs {
     ms_scan: f64,
     ms_window_nograd: f64,
     ms_critic_step: f64,
     ms_critic_rescan: f64,
     ms_actor_step: f64,
     ms_other: f64,
+}
+
+impl From<rdpg_agents::rdpg::PhaseTimes> for PhaseMs {
+    fn from(p: rdpg_agents::rdpg::PhaseTimes) -> Self {
+        Self {
+            ms_scan: p.scan * 1e3,
+            ms_window_nograd: p.window_nograd * 1e3,
+            ms_critic_step: p.critic_step * 1e3,
+            ms_critic_rescan: p.critic_rescan * 1e3,
+            ms_actor_step: p.actor_step * 1e3,
+            ms_other: (p.prepare + p.other) * 1e3,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct RunUpdateBenchLine {
+    bench: &'static str,
+    checkpoint: String,
+    updates_before: u64,
+    mode: rdpg_agents::rdpg::bench::ThreadMode,
+    iters: usize,
+    rounds: usize,
+    #[serde(flatten)]
+    ms: PhaseMs,
     updates_per_sec: f64,
+}
+
+fn bench_update_on_run(run: &std::path::Path, iters: usize, rounds: usize) -> Result<()> {
+    if rounds == 0 {
+        bail!("--rounds must be positive");
+    }
+    let latest = run.join("checkpoints").join("latest");
+    let ckpt = if latest.is_dir() {
+        latest
+    } else {
+        run.to_path_buf()
+    };
+    let (updates_before, results) =
+        rdpg_agents::rdpg::bench::bench_update_on_run(&ckpt, iters, rounds)?;
+    for r in results {
+        let line = RunUpdateBenchLine {
+            bench: "update_run",
+            checkpoint: ckpt.display().to_string(),
+            updates_before,
+            mode: r.mode,
+            iters,
+            rounds,
+            ms: r.per_update.into(),
+            updates_per_sec: r.updates_per_sec,
+        };
+        println!("{}", serde_json::to_string(&line)?);
+    }
+    Ok(())
 }
 
 fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
@@ -211,6 +281,9 @@ fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
     use rdpg_agents::{DeviceSpec, RdpgConfig};
     if a.iters == 0 || a.batch == 0 || a.opt == 0 {
         bail!("--iters, --batch and --opt must be positive");
+    }
+    if let Some(run) = &a.run {
+        return bench_update_on_run(run, a.iters, a.rounds);
     }
     let device = a.device.spec();
     let (cfg, obs_dim, act_dim) = match &a.config {
@@ -246,7 +319,6 @@ fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
         }
     };
     let r = bench_update_with(&cfg, obs_dim, act_dim, 0.0, a.iters)?;
-    let p = r.per_update;
     let dev = if device == DeviceSpec::Cpu || !rdpg_agents::cuda_available() {
         "cpu"
     } else {
@@ -260,12 +332,7 @@ fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
         opt: cfg.opt_len,
         iters: a.iters,
         threads: a.threads,
-        ms_scan: p.scan * 1e3,
-        ms_window_nograd: p.window_nograd * 1e3,
-        ms_critic_step: p.critic_step * 1e3,
-        ms_critic_rescan: p.critic_rescan * 1e3,
-        ms_actor_step: p.actor_step * 1e3,
-        ms_other: (p.prepare + p.other) * 1e3,
+        ms: r.per_update.into(),
         updates_per_sec: r.updates_per_sec,
     };
     println!("{}", serde_json::to_string(&line)?);

@@ -937,4 +937,25 @@ fn a_walker_run_resumes_bit_identically() {
         "resumed walker run differs"
     );
     assert_eq!(episode_rows(&one), episode_rows(&two));
+
+    // The stopped run's update, timed as it stands in every thread mode; nothing is saved.
+    let out = ok(rdpg()
+        .args(["bench", "update", "--iters", "2", "--rounds", "1", "--run"])
+        .arg(&one));
+    let lines: Vec<Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let modes: Vec<&str> = lines.iter().map(|v| v["mode"].as_str().unwrap()).collect();
+    assert_eq!(modes, ["one_thread", "two_threads", "parallel_twins"]);
+    for v in &lines {
+        assert_eq!(v["updates_before"].as_u64().unwrap(), 900);
+        assert!(v["updates_per_sec"].as_f64().unwrap() > 0.0, "{v}");
+    }
+    assert_eq!(
+        latest_weights(&one),
+        latest_weights(&two),
+        "the benchmark changed the run"
+    );
 }

@@ -16,6 +16,7 @@ pub mod noise;
 pub mod replay;
 pub mod rng;
 pub mod spaces;
+pub mod spin;
 pub mod targets;
 
 pub use batch::SequenceBatch;

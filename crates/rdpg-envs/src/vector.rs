@@ -15,6 +15,7 @@
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::thread::JoinHandle;
 
+use rdpg_core::spin::recv_spin;
 use rdpg_core::{EnvError, EnvInfo};
 
 use crate::registry::AnyEnv;
@@ -442,29 +443,6 @@ impl Shard {
         }
     }
 }
-
-/// Receives from `rx`, spinning briefly before blocking: a step takes tens of microseconds, and
-/// waking a parked thread (a futex round trip, slow on virtual machines) would cost as much.
-fn recv_spin<T>(rx: &Receiver<T>) -> Result<T, std::sync::mpsc::RecvError> {
-    let start = std::time::Instant::now();
-    loop {
-        match rx.try_recv() {
-            Ok(v) => return Ok(v),
-            Err(std::sync::mpsc::TryRecvError::Disconnected) => {
-                return Err(std::sync::mpsc::RecvError)
-            }
-            Err(std::sync::mpsc::TryRecvError::Empty) => {
-                if start.elapsed() > SPIN {
-                    return rx.recv();
-                }
-                std::hint::spin_loop();
-            }
-        }
-    }
-}
-
-/// How long a waiting thread spins before it blocks.
-const SPIN: std::time::Duration = std::time::Duration::from_micros(200);
 
 fn worker_loop(mut shard: Shard, rx: Receiver<Cmd>, tx: Sender<Reply>) {
     while let Ok(cmd) = recv_spin(&rx) {

@@ -95,32 +95,53 @@ impl Adam {
 
     /// One Adam step on the current gradients (parameters without a gradient are skipped).
     pub fn step(&mut self) {
+        let s = self.begin_step();
+        self.apply(&s, 0..self.params.len());
+    }
+
+    /// Counts a step and returns its coefficients, for a step taken in parts:
+    /// [`Adam::apply`] on ranges of the parameters here, [`AdamPart::apply`] on others on
+    /// another thread. Every parameter must get the same `AdamStep` exactly once; the result
+    /// is then identical to [`Adam::step`].
+    pub fn begin_step(&mut self) -> AdamStep {
         self.step += 1;
         let c = self.cfg;
         let t = self.step as i32;
-        let bc1 = 1.0 - c.beta1.powi(t);
-        let bc2 = 1.0 - c.beta2.powi(t);
-        let step_size = c.lr / bc1;
-        let bc2_sqrt = bc2.sqrt();
+        AdamStep {
+            cfg: c,
+            step_size: c.lr / (1.0 - c.beta1.powi(t)),
+            bc2_sqrt: (1.0 - c.beta2.powi(t)).sqrt(),
+        }
+    }
+
+    /// Applies `s` to the parameters in `range` (in the order given to [`Adam::new`]).
+    pub fn apply(&mut self, s: &AdamStep, range: std::ops::Range<usize>) {
+        let (p, m, v) = (
+            &mut self.params[range.clone()],
+            &mut self.m[range.clone()],
+            &mut self.v[range],
+        );
         tch::no_grad(|| {
-            for ((p, m), v) in self.params.iter_mut().zip(&mut self.m).zip(&mut self.v) {
-                let g = p.grad();
-                if !g.defined() {
-                    continue;
-                }
-                let g = if c.weight_decay != 0.0 {
-                    &g + &*p * c.weight_decay
-                } else {
-                    g
-                };
-                let _ = m.lerp_(&g, 1.0 - c.beta1);
-                let _ = v
-                    .g_mul_scalar_(c.beta2)
-                    .addcmul_(&g, &g.g_mul_scalar(1.0 - c.beta2));
-                let denom = (v.sqrt() / bc2_sqrt) + c.eps;
-                let _ = p.addcdiv_(&(&*m * -step_size), &denom);
+            for ((p, m), v) in p.iter_mut().zip(m).zip(v) {
+                s.apply_one(p, m, v);
             }
         });
+    }
+
+    /// Second handles to the parameters in `range` and their moments, to step them on another
+    /// thread.
+    pub fn part(&self, range: std::ops::Range<usize>) -> AdamPart {
+        let h = |ts: &[Tensor]| {
+            ts[range.clone()]
+                .iter()
+                .map(Tensor::shallow_clone)
+                .collect()
+        };
+        AdamPart {
+            params: h(&self.params),
+            m: h(&self.m),
+            v: h(&self.v),
+        }
     }
 
     /// The optimiser state as named tensors (`{prefix}step`, `{prefix}m.{name}`,
@@ -161,6 +182,55 @@ impl Adam {
             });
         }
         Ok(())
+    }
+}
+
+/// The coefficients of one Adam step ([`Adam::begin_step`]).
+#[derive(Debug, Clone, Copy)]
+pub struct AdamStep {
+    cfg: AdamConfig,
+    step_size: f64,
+    bc2_sqrt: f64,
+}
+
+impl AdamStep {
+    fn apply_one(&self, p: &mut Tensor, m: &mut Tensor, v: &mut Tensor) {
+        let c = self.cfg;
+        let g = p.grad();
+        if !g.defined() {
+            return;
+        }
+        let g = if c.weight_decay != 0.0 {
+            &g + &*p * c.weight_decay
+        } else {
+            g
+        };
+        let _ = m.lerp_(&g, 1.0 - c.beta1);
+        let _ = v
+            .g_mul_scalar_(c.beta2)
+            .addcmul_(&g, &g.g_mul_scalar(1.0 - c.beta2));
+        let denom = (v.sqrt() / self.bc2_sqrt) + c.eps;
+        let _ = p.addcdiv_(&(&*m * -self.step_size), &denom);
+    }
+}
+
+/// Some of an [`Adam`]'s parameters and moments as second handles ([`Adam::part`]): `Send`,
+/// so that a step can be applied to them on another thread.
+#[derive(Debug)]
+pub struct AdamPart {
+    params: Vec<Tensor>,
+    m: Vec<Tensor>,
+    v: Vec<Tensor>,
+}
+
+impl AdamPart {
+    /// Applies `s` to these parameters.
+    pub fn apply(&mut self, s: &AdamStep) {
+        tch::no_grad(|| {
+            for ((p, m), v) in self.params.iter_mut().zip(&mut self.m).zip(&mut self.v) {
+                s.apply_one(p, m, v);
+            }
+        });
     }
 }
 
@@ -222,5 +292,51 @@ mod tests {
             (g[0] - 0.6).abs() < 1e-5 && (g[1] - 0.8).abs() < 1e-5,
             "{g:?}"
         );
+    }
+
+    /// A step taken in parts, one of them on another thread, equals one step bit for bit.
+    #[test]
+    fn a_step_in_parts_equals_one_step() {
+        let cfg = AdamConfig {
+            lr: 0.05,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            weight_decay: 0.01,
+        };
+        let make = || {
+            let ps: Vec<Tensor> = (0..3)
+                .map(|i| {
+                    Tensor::from_slice(&[1.0f32 + i as f32, -0.5, 0.25]).set_requires_grad(true)
+                })
+                .collect();
+            let named = ps
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (format!("p{i}"), p.shallow_clone()));
+            (Adam::new(cfg, named.collect()), ps)
+        };
+        let (mut whole, pw) = make();
+        let (mut parts, pp) = make();
+        for _ in 0..4 {
+            for (adam, ps) in [(&mut whole, &pw), (&mut parts, &pp)] {
+                adam.zero_grad();
+                let loss = ps
+                    .iter()
+                    .map(|p| p.pow_tensor_scalar(3).sum(Kind::Float))
+                    .reduce(|a, b| a + b)
+                    .unwrap();
+                loss.backward();
+            }
+            whole.step();
+            let s = parts.begin_step();
+            let mut side = parts.part(1..3);
+            std::thread::spawn(move || side.apply(&s)).join().unwrap();
+            parts.apply(&s, 0..1);
+        }
+        for (a, b) in pw.iter().zip(&pp) {
+            assert!(a.equal(b), "{a:?} vs {b:?}");
+        }
+        assert_eq!(whole.steps(), parts.steps());
     }
 }

@@ -1,6 +1,6 @@
 //! What every learner and trainer shares: the run config, the [`Trainer`] surface and its
 //! observers, the collector, deterministic policies and their evaluation, checkpoint I/O,
-//! tensor helpers and Adam.
+//! tensor helpers, Adam and the update's second thread.
 //!
 //! Nothing here knows a particular algorithm: `rdpg/` and `ppo/` import from here, never the
 //! other way round.
@@ -10,6 +10,7 @@ pub mod checkpoint;
 pub mod collector;
 pub mod config;
 pub mod policy;
+pub mod side_thread;
 pub mod tensor;
 pub mod trainer;
 

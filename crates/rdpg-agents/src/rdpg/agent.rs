@@ -119,7 +119,8 @@ pub(super) struct Targets {
     pub(super) actor: Actor,
     pub(super) critic_vs: Vec<VarStore>,
     pub(super) critics: Vec<Critic>,
-    /// (target variable, online variable) pairs for the soft update.
+    /// (target variable, online variable) pairs for the soft update: the actor's, then each
+    /// critic's in order (the update hands the last critic's to its second thread).
     pub(super) pairs: Vec<(Tensor, Tensor)>,
 }
 
@@ -145,6 +146,8 @@ pub struct RdpgAgent {
     /// A copy of the actor with perturbed parameters that [`RdpgAgent::act_exploring`] uses
     /// (parameter-space exploration); not trained, not checkpointed.
     pub(super) exploring: Option<(VarStore, Actor)>,
+    /// The update's second thread (`parallel_twins`), started by the first such update.
+    pub(super) side: Option<crate::common::side_thread::SideThread>,
 }
 
 impl std::fmt::Debug for RdpgAgent {
@@ -288,6 +291,7 @@ impl RdpgAgent {
             updates: 0,
             profile: None,
             exploring: None,
+            side: None,
         })
     }
 
@@ -305,6 +309,9 @@ impl RdpgAgent {
         };
         cfg.validate()?;
         self.cfg = cfg;
+        if !on {
+            self.side = None;
+        }
         Ok(())
     }
 

@@ -1,6 +1,7 @@
 //! Synthetic BipedalWalker-shaped batches and an update-throughput benchmark (the counterpart
 //! of `scripts/bench/pytorch_update_bench.py`).
 
+use std::path::Path;
 use std::time::Instant;
 
 use rdpg_core::rng::NpRng;
@@ -9,8 +10,9 @@ use serde::{Deserialize, Serialize};
 
 use super::agent::RdpgAgent;
 use super::config::RdpgConfig;
+use super::trainer::OffPolicyTrainer;
 use super::update::PhaseTimes;
-use crate::error::Result;
+use crate::error::{AgentError, Result};
 
 /// A random but well-formed batch: `n` windows of `scan + opt` steps, observations of size
 /// `obs_dim` (the last 10 values in `[0, 1]` like lidar ranges, the rest standard normal),
@@ -129,8 +131,15 @@ pub fn bench_update_with(
         agent.update(&batches[i % batches.len()]);
     }
     let secs = t0.elapsed().as_secs_f64();
-    let mut p = agent.profile().unwrap_or_default();
-    let k = iters.max(1) as f64;
+    Ok(BenchResult {
+        updates_per_sec: iters as f64 / secs,
+        per_update: per_update(agent.profile().unwrap_or_default()),
+    })
+}
+
+/// Phase totals divided by the number of updates they cover.
+fn per_update(mut p: PhaseTimes) -> PhaseTimes {
+    let k = p.updates.max(1) as f64;
     for v in [
         &mut p.prepare,
         &mut p.scan,
@@ -142,10 +151,105 @@ pub fn bench_update_with(
     ] {
         *v /= k;
     }
-    Ok(BenchResult {
-        updates_per_sec: iters as f64 / secs,
-        per_update: p,
-    })
+    p
+}
+
+/// How an update uses the CPU: what [`bench_update_on_run`] compares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ThreadMode {
+    /// One libtorch thread.
+    OneThread,
+    /// Two libtorch (intra-op) threads.
+    TwoThreads,
+    /// One libtorch thread each on two threads: the second critic's work on the second
+    /// (`agent.parallel_twins`).
+    ParallelTwins,
+}
+
+/// One mode's result in [`bench_update_on_run`].
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct ModeResult {
+    /// The thread mode.
+    pub mode: ThreadMode,
+    /// Updates per second over all its timed updates.
+    pub updates_per_sec: f64,
+    /// Seconds per update in each phase.
+    pub per_update: PhaseTimes,
+}
+
+/// Times the update of a stopped training run, as it stands: the agent, its optimiser state
+/// and its replay from the trainer checkpoint `checkpoint` (e.g. `RUN/checkpoints/latest`),
+/// on 16 batches sampled from that replay (seed 0). This is the update a long run makes
+/// after `updates` updates (the first value returned), with its trained weights and Adam
+/// moments, where a small-batch synthetic benchmark cannot see effects that grow with
+/// training (subnormal floats). Each of the modes the agent allows ([`ThreadMode`];
+/// `ParallelTwins` needs twin critics and target networks) runs `iters` updates per round,
+/// modes interleaved over `rounds` rounds so that the machine's drift hits all alike; the
+/// agent keeps learning through all of them (nothing is saved).
+pub fn bench_update_on_run(
+    checkpoint: &Path,
+    iters: usize,
+    rounds: usize,
+) -> Result<(u64, Vec<ModeResult>)> {
+    let mut trainer = OffPolicyTrainer::load(checkpoint)?;
+    let c = trainer.agent().config().clone();
+    let (b, s, l) = (c.batch_size, c.scan_len, c.opt_len);
+    let mut rng = NpRng::from_seed(0);
+    let batches = (0..16)
+        .map(|_| trainer.replay().sample(&mut rng, b, s, l))
+        .collect::<Option<Vec<SequenceBatch>>>()
+        .ok_or_else(|| {
+            AgentError::Checkpoint(format!(
+                "{}: the replay has too few transitions for a batch of {b}",
+                checkpoint.display()
+            ))
+        })?;
+    let updates_before = trainer.agent().updates();
+    let agent = trainer.agent_mut();
+    let twins_ok = agent.set_parallel_twins(true).is_ok();
+    let mut modes = vec![ThreadMode::OneThread, ThreadMode::TwoThreads];
+    if twins_ok {
+        modes.push(ThreadMode::ParallelTwins);
+    }
+    let set_mode = |agent: &mut RdpgAgent, m: ThreadMode| -> Result<()> {
+        tch::set_num_threads(if m == ThreadMode::TwoThreads { 2 } else { 1 });
+        agent.set_parallel_twins(m == ThreadMode::ParallelTwins && twins_ok)
+    };
+    let mut total: Vec<(f64, PhaseTimes)> = vec![(0.0, PhaseTimes::default()); modes.len()];
+    let mut k = 0;
+    for &m in &modes {
+        set_mode(agent, m)?;
+        for _ in 0..3 {
+            agent.update(&batches[k % batches.len()]);
+            k += 1;
+        }
+    }
+    for _ in 0..rounds {
+        for (i, &m) in modes.iter().enumerate() {
+            set_mode(agent, m)?;
+            agent.set_profiling(true);
+            let t0 = Instant::now();
+            for _ in 0..iters {
+                agent.update(&batches[k % batches.len()]);
+                k += 1;
+            }
+            total[i].0 += t0.elapsed().as_secs_f64();
+            let p = agent.profile().unwrap_or_default();
+            total[i].1.add(&p);
+        }
+    }
+    agent.set_profiling(false);
+    let out = modes
+        .iter()
+        .zip(total)
+        .map(|(&mode, (secs, p))| ModeResult {
+            mode,
+            updates_per_sec: p.updates as f64 / secs.max(1e-12),
+            per_update: per_update(p),
+        })
+        .collect();
+    Ok((updates_before, out))
 }
 
 /// Updates per second at BipedalWalker sizes (obs 24, act 4, the paper's networks, CPU, 2

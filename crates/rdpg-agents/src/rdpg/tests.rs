@@ -1478,7 +1478,13 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
         scan_len: 0,
         ..tiny()
     });
-    for cfg in [recurrent, feed_forward] {
+    // The critic's Adam step after the actor's backward pass, and clipped gradients.
+    let deferred = RdpgConfig {
+        actor_uses_updated_critic: false,
+        grad_clip: Some(0.5),
+        ..recurrent.clone()
+    };
+    for cfg in [recurrent, feed_forward, deferred] {
         let parallel = RdpgConfig {
             parallel_twins: true,
             ..cfg.clone()

@@ -40,7 +40,8 @@
 //! With `parallel_twins` steps 1 and 2 run the second critic's share (its scan and its
 //! target's, the target actor's scan, the behaviour actor's states, target critic 1's value,
 //! critic 1's forward and backward pass) on a second thread, with the same arithmetic
-//! (`twin_critic_gradients`): the result is bit-identical.
+//! (`twin_critic_gradients`), and critic 1's Adam step and its target's soft update run there
+//! while this thread takes critic 0's step and the actor's: the result is bit-identical.
 
 use std::time::Instant;
 
@@ -53,6 +54,7 @@ use super::agent::RdpgAgent;
 use super::config::{CriticTarget, ScanMethod};
 use super::lstm::{scan_state, RecState};
 use super::nets::{Actor, Critic};
+use crate::common::side_thread::SideThread;
 use crate::common::UpdateStats;
 
 /// Wall-clock seconds spent in each phase of the updates since profiling was switched on
@@ -75,6 +77,20 @@ pub struct PhaseTimes {
     pub actor_step: f64,
     /// Soft target update and statistics.
     pub other: f64,
+}
+
+impl PhaseTimes {
+    /// Adds `o`'s updates and phase times to these.
+    pub fn add(&mut self, o: &PhaseTimes) {
+        self.updates += o.updates;
+        self.prepare += o.prepare;
+        self.scan += o.scan;
+        self.window_nograd += o.window_nograd;
+        self.critic_step += o.critic_step;
+        self.critic_rescan += o.critic_rescan;
+        self.actor_step += o.actor_step;
+        self.other += o.other;
+    }
 }
 
 impl RdpgAgent {
@@ -102,19 +118,23 @@ impl RdpgAgent {
         let started = std::time::Instant::now();
         let mut clock = Clock::new(self.profile.is_some());
         let p = self.prepare(batch);
+        // The second thread of `parallel_twins`, kept for the agent's life.
+        let mut side = self
+            .cfg
+            .parallel_twins
+            .then(|| self.side.take().unwrap_or_default());
         clock.lap(|t| &mut t.prepare);
 
         // ---- 1. Scan: h_{-1} for every network, no gradient (paper Eq. (scan)). -------------
-        let sc = if self.cfg.parallel_twins {
-            self.scan_all_parallel(&p)
-        } else {
-            self.scan_all(&p)
+        let sc = match &mut side {
+            Some(side) => self.scan_all_parallel(&p, side),
+            None => self.scan_all(&p),
         };
         clock.lap(|t| &mut t.scan);
 
         // ---- 2. Critic: q along the window (with gradient) and its targets (without). -------
-        let (q0, critic_loss, actor_states) = if self.cfg.parallel_twins {
-            self.twin_critic_gradients(&p, &sc, &mut clock)
+        let (q0, critic_loss, actor_states) = if let Some(side) = &mut side {
+            self.twin_critic_gradients(&p, &sc, side, &mut clock)
         } else {
             let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
             let critic_loss = q_sa
@@ -138,8 +158,37 @@ impl RdpgAgent {
         // critic, or (Algorithm 1 order) rescanned after its Adam step.
         let critic_states_old =
             (!updated_critic).then(|| tch::no_grad(|| self.critic_states(&p, &sc.critics[0])));
+        // Adam for the critics: one step, taken now or after the actor's backward pass. With
+        // `parallel_twins` critic 1's share (and on the actor's turn its target's soft update)
+        // runs on the second thread until the end of the update: nothing below reads critic 1.
+        let critic_step = self.critic_opt.begin_step();
+        let n_critic = self.critic_opt.params().len();
+        let (own, side_targets) = match &mut side {
+            Some(side) => {
+                let split = self.critic_vs[0].variables().len();
+                let mut part = self.critic_opt.part(split..n_critic);
+                let t = self.targets.as_ref().expect("validated: target networks");
+                let k = t.pairs.len() - (n_critic - split); // critic 1's target pairs are last
+                let pairs: Vec<(Tensor, Tensor)> = t.pairs[k..]
+                    .iter()
+                    .map(|(a, b)| (a.shallow_clone(), b.shallow_clone()))
+                    .collect();
+                let tau = self.cfg.tau;
+                side.start(self.cfg.flush_denormal, move || {
+                    part.apply(&critic_step);
+                    if actor_turn {
+                        soft_update(pairs, tau);
+                    }
+                });
+                (0..split, k)
+            }
+            None => (
+                0..n_critic,
+                self.targets.as_ref().map_or(0, |t| t.pairs.len()),
+            ),
+        };
         if updated_critic {
-            self.critic_opt.step();
+            self.critic_opt.apply(&critic_step, own.clone());
         }
         clock.lap(|t| &mut t.critic_step);
 
@@ -158,35 +207,37 @@ impl RdpgAgent {
                 Some((hb, cb)) => ActorInput::Detached { h: hb, c: cb },
                 None => ActorInput::Bptt { h0: &sc.actor },
             };
-            // The critic is a constant here: no gradients are computed or accumulated for it.
-            for vs in &mut self.critic_vs {
-                vs.freeze();
-            }
+            // Critic 0 is a constant here: no gradients are computed or accumulated for it
+            // (the only critic the actor loss reads).
+            self.critic_vs[0].freeze();
             let loss = actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
             self.actor_opt.zero_grad();
             loss.backward();
-            for vs in &mut self.critic_vs {
-                vs.unfreeze();
-            }
+            self.critic_vs[0].unfreeze();
             if let Some(c) = self.cfg.grad_clip {
                 let _ = self.actor_opt.clip_grad_norm(c);
             }
             if !updated_critic {
-                self.critic_opt.step();
+                self.critic_opt.apply(&critic_step, own);
             }
             self.actor_opt.step();
             actor_loss_value = Some(loss.double_value(&[]));
             clock.lap(|t| &mut t.actor_step);
 
             // ---- 4. Soft target update theta' <- theta' + tau (theta - theta'). -----------
+            // (Critic 1's target on the second thread with `parallel_twins`.)
             if let Some(t) = &mut self.targets {
                 let tau = self.cfg.tau;
                 tch::no_grad(|| {
-                    for (tv, sv) in &mut t.pairs {
+                    for (tv, sv) in &mut t.pairs[..side_targets] {
                         let _ = tv.lerp_(sv, tau);
                     }
                 });
             }
+        }
+        if let Some(mut side) = side {
+            side.finish::<()>();
+            self.side = Some(side);
         }
         let q_mean = tch::no_grad(|| (&q0 * &p.mask).sum(self.kind) / p.mask.sum(self.kind));
         let stats = UpdateStats {
@@ -336,6 +387,7 @@ impl RdpgAgent {
         &mut self,
         p: &Prepared,
         sc: &Scanned,
+        side: &mut SideThread,
         clock: &mut Clock,
     ) -> (Tensor, Tensor, Option<(Tensor, Tensor)>) {
         let ftz = self.cfg.flush_denormal;
@@ -350,8 +402,8 @@ impl RdpgAgent {
                     p.shallow_clone(),
                     sc.actor.shallow_clone(),
                 );
-                let side = move || tch::no_grad(|| actor_states(&actor, &p1, &h1));
-                let (a_tail, states) = on_two_threads(ftz, main, side);
+                let states = move || tch::no_grad(|| actor_states(&actor, &p1, &h1));
+                let (a_tail, states) = side.run(ftz, main, states);
                 (a_tail, Some(states))
             } else {
                 (main(), None)
@@ -367,7 +419,7 @@ impl RdpgAgent {
             sc.target_critics[1].shallow_clone(),
             a_tail.shallow_clone(),
         );
-        let (q0_tail, q1_tail) = on_two_threads(
+        let (q0_tail, q1_tail) = side.run(
             ftz,
             || tch::no_grad(|| target_q(&t.critics[0], p, &sc.target_critics[0], &a_tail)),
             move || tch::no_grad(|| target_q(&t1, &p1, &h1, &a1)),
@@ -382,7 +434,7 @@ impl RdpgAgent {
             sc.critics[1].shallow_clone(),
             y.shallow_clone(),
         );
-        let ((q0, loss0), (_, loss1)) = on_two_threads(
+        let ((q0, loss0), (_, loss1)) = side.run(
             ftz,
             || td_backward(&self.critics[0], p, &sc.critics[0], &y),
             move || td_backward(&c1, &p1, &h1, &y1),
@@ -568,7 +620,7 @@ impl RdpgAgent {
 
     /// Step 1 with `parallel_twins`: actor, critic 0 and target critic 0 here; critic 1, its
     /// target and the target actor on a second thread (when there is a scan to run).
-    fn scan_all_parallel(&self, p: &Prepared) -> Scanned {
+    fn scan_all_parallel(&self, p: &Prepared, side: &mut SideThread) -> Scanned {
         if p.s == 0 || !self.actor.core.is_recurrent() {
             return self.scan_all(p);
         }
@@ -582,7 +634,7 @@ impl RdpgAgent {
             p.shallow_clone(),
             actor_init.shallow_clone(),
         );
-        let ((actor, h0, th0), (h1, th1, h_ta)) = on_two_threads(
+        let ((actor, h0, th0), (h1, th1, h_ta)) = side.run(
             self.cfg.flush_denormal,
             || {
                 tch::no_grad(|| {
@@ -697,32 +749,13 @@ impl Prepared {
     }
 }
 
-/// Runs `main` on this thread and `side` on a second (scoped) thread that first takes the
-/// update's flush-to-zero mode and libtorch's thread count; a panic on the second thread is
-/// raised again here.
-fn on_two_threads<A, B: Send>(
-    ftz: bool,
-    main: impl FnOnce() -> A,
-    side: impl FnOnce() -> B + Send,
-) -> (A, B) {
-    let threads = tch::get_num_threads();
-    std::thread::scope(|s| {
-        let worker = s.spawn(move || {
-            if ftz {
-                crate::common::tensor::set_flush_denormal(true);
-            }
-            // OpenMP's and MKL's thread counts are per thread: without this a new thread's
-            // first kernel starts a team of one thread per core (measured: the critic step of
-            // walker-td3.toml 2x slower instead of 1.3x faster).
-            tch::set_num_threads(threads);
-            side()
-        });
-        let a = main();
-        let b = worker
-            .join()
-            .unwrap_or_else(|e| std::panic::resume_unwind(e));
-        (a, b)
-    })
+/// `theta' <- theta' + tau (theta - theta')` for each (target, online) pair.
+fn soft_update(pairs: Vec<(Tensor, Tensor)>, tau: f64) {
+    tch::no_grad(|| {
+        for (mut tv, sv) in pairs {
+            let _ = tv.lerp_(&sv, tau);
+        }
+    });
 }
 
 /// `h_{-1}` of `actor` from `init` (call without gradient): its scan over the replayed
@@ -930,12 +963,6 @@ impl Clock {
     }
 
     fn add_into(&self, t: &mut PhaseTimes) {
-        t.prepare += self.acc.prepare;
-        t.scan += self.acc.scan;
-        t.window_nograd += self.acc.window_nograd;
-        t.critic_step += self.acc.critic_step;
-        t.critic_rescan += self.acc.critic_rescan;
-        t.actor_step += self.acc.actor_step;
-        t.other += self.acc.other;
+        t.add(&self.acc);
     }
 }
