@@ -148,6 +148,9 @@ pub struct RdpgAgent {
     pub(super) exploring: Option<(VarStore, Actor)>,
     /// The update's second thread (`parallel_twins`), started by the first such update.
     pub(super) side: Option<crate::common::side_thread::SideThread>,
+    /// How many of `critic_opt`'s parameters are critic 0's (they come first): where
+    /// `parallel_twins` splits the critics' Adam step between the two threads.
+    pub(super) critic0_params: usize,
 }
 
 impl std::fmt::Debug for RdpgAgent {
@@ -270,6 +273,7 @@ impl RdpgAgent {
             weight_decay: wd,
         };
         let actor_opt = Adam::new(adam(cfg.lr_actor, 0.0), sorted_vars(&actor_vs));
+        let critic0_params = sorted_vars(&critic_vs[0]).len();
         let critic_params: Vec<_> = critic_vs.iter().flat_map(sorted_vars).collect();
         let critic_opt = Adam::new(adam(cfg.lr_critic, cfg.critic_l2), critic_params);
 
@@ -292,6 +296,7 @@ impl RdpgAgent {
             profile: None,
             exploring: None,
             side: None,
+            critic0_params,
         })
     }
 

@@ -165,11 +165,11 @@ impl RdpgAgent {
         let n_critic = self.critic_opt.params().len();
         let (own, side_targets) = match &mut side {
             Some(side) => {
-                let split = self.critic_vs[0].variables().len();
+                let split = self.critic0_params;
                 let mut part = self.critic_opt.part(split..n_critic);
                 let t = self.targets.as_ref().expect("validated: target networks");
                 let k = t.pairs.len() - (n_critic - split); // critic 1's target pairs are last
-                let pairs: Vec<(Tensor, Tensor)> = t.pairs[k..]
+                let mut pairs: Vec<(Tensor, Tensor)> = t.pairs[k..]
                     .iter()
                     .map(|(a, b)| (a.shallow_clone(), b.shallow_clone()))
                     .collect();
@@ -177,7 +177,7 @@ impl RdpgAgent {
                 side.start(self.cfg.flush_denormal, move || {
                     part.apply(&critic_step);
                     if actor_turn {
-                        soft_update(pairs, tau);
+                        soft_update(&mut pairs, tau);
                     }
                 });
                 (0..split, k)
@@ -227,12 +227,7 @@ impl RdpgAgent {
             // ---- 4. Soft target update theta' <- theta' + tau (theta - theta'). -----------
             // (Critic 1's target on the second thread with `parallel_twins`.)
             if let Some(t) = &mut self.targets {
-                let tau = self.cfg.tau;
-                tch::no_grad(|| {
-                    for (tv, sv) in &mut t.pairs[..side_targets] {
-                        let _ = tv.lerp_(sv, tau);
-                    }
-                });
+                soft_update(&mut t.pairs[..side_targets], self.cfg.tau);
             }
         }
         if let Some(mut side) = side {
@@ -750,10 +745,10 @@ impl Prepared {
 }
 
 /// `theta' <- theta' + tau (theta - theta')` for each (target, online) pair.
-fn soft_update(pairs: Vec<(Tensor, Tensor)>, tau: f64) {
+fn soft_update(pairs: &mut [(Tensor, Tensor)], tau: f64) {
     tch::no_grad(|| {
-        for (mut tv, sv) in pairs {
-            let _ = tv.lerp_(&sv, tau);
+        for (tv, sv) in pairs {
+            let _ = tv.lerp_(sv, tau);
         }
     });
 }
