@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Issue "training speed", item 2: the small recurrent recipes' update, rdpg against the same
 # update in PyTorch, in one run: rdpg on one thread, rdpg with `parallel_twins`, PyTorch on one
-# and on two threads. Prints one Markdown row per config and round (updates/s).
+# and on two threads, and PyTorch again with glibc's allocator set as the rdpg binary sets it
+# (rdpg_core::malloc; GLIBC_TUNABLES). Prints one Markdown row per config and round (updates/s).
 # Usage: scripts/bench/bench_recipe_update.sh [ROUNDS] [ITERS]   (defaults: 3, 200)
 # Needs target/release/rdpg (scripts/setup.sh) and torch in .venv
 # (.venv/bin/pip install -r scripts/setup/requirements_reference.txt).
@@ -14,7 +15,8 @@ py=.venv/bin/python
 tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
 ups() { grep -o '"updates_per_sec": *[0-9.]*' | cut -d: -f2 | tr -d ' '; }
-printf '| config, round | rdpg, 1 thread | rdpg, parallel_twins | PyTorch 1 thread | PyTorch 2 threads |\n|---|---|---|---|---|\n'
+tuned=GLIBC_TUNABLES=glibc.malloc.mmap_threshold=$((64 << 20)):glibc.malloc.trim_threshold=$((512 << 20))
+printf '| config, round | rdpg, 1 thread | rdpg, parallel_twins | PyTorch 1 thread | PyTorch 2 threads | PyTorch 1 thread, tuned malloc | PyTorch 2 threads, tuned malloc |\n|---|---|---|---|---|---|---|\n'
 for r in $(seq "$rounds"); do
   for c in walker-rdpg memory-rdpg; do
     dims=(); [ "$c" = memory-rdpg ] && dims=(--obs 2 --act 1)
@@ -24,6 +26,8 @@ for r in $(seq "$rounds"); do
     par=$($rdpg bench update --config "$tmp/$c-par.toml" --iters "$iters" --threads 1 | ups)
     py1=$($py scripts/bench/pytorch_recipe_update.py --config "configs/$c.toml" --iters "$iters" --threads 1 "${dims[@]}" | ups)
     py2=$($py scripts/bench/pytorch_recipe_update.py --config "configs/$c.toml" --iters "$iters" --threads 2 "${dims[@]}" | ups)
-    printf '| %s, %s | %.1f | %.1f | %.1f | %.1f |\n' "$c" "$r" "$one" "$par" "$py1" "$py2"
+    pt1=$(env "$tuned" $py scripts/bench/pytorch_recipe_update.py --config "configs/$c.toml" --iters "$iters" --threads 1 "${dims[@]}" | ups)
+    pt2=$(env "$tuned" $py scripts/bench/pytorch_recipe_update.py --config "configs/$c.toml" --iters "$iters" --threads 2 "${dims[@]}" | ups)
+    printf '| %s, %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f |\n' "$c" "$r" "$one" "$par" "$py1" "$py2" "$pt1" "$pt2"
   done
 done

@@ -49,6 +49,7 @@ enum Command {
 }
 
 fn main() -> Result<()> {
+    rdpg_core::malloc::keep_freed_memory();
     let cli = Cli::parse();
     match cli.command {
         Command::Train(a) => train::run(&a),

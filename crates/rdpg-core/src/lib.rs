@@ -12,6 +12,7 @@ pub mod batch;
 pub mod env;
 pub mod error;
 pub mod fpmode;
+pub mod malloc;
 pub mod noise;
 pub mod replay;
 pub mod rng;
