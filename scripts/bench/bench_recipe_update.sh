@@ -15,6 +15,8 @@ py=.venv/bin/python
 tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
 ups() { grep -o '"updates_per_sec": *[0-9.]*' | cut -d: -f2 | tr -d ' '; }
+# PyTorch with the malloc settings rdpg applies to itself (rdpg_core::malloc, MMAP_THRESHOLD /
+# TRIM_THRESHOLD: keep this in step with them).
 tuned=GLIBC_TUNABLES=glibc.malloc.mmap_threshold=$((64 << 20)):glibc.malloc.trim_threshold=$((512 << 20))
 printf '| config, round | rdpg, 1 thread | rdpg, parallel_twins | PyTorch 1 thread | PyTorch 2 threads | PyTorch 1 thread, tuned malloc | PyTorch 2 threads, tuned malloc |\n|---|---|---|---|---|---|---|\n'
 for r in $(seq "$rounds"); do

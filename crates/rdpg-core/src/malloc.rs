@@ -29,7 +29,7 @@ extern "C" {
 /// at the start of a process, before the allocations it should govern. Returns whether the
 /// settings were applied (false elsewhere than on glibc, or when opted out).
 pub fn keep_freed_memory() -> bool {
-    if std::env::var("RDPG_MALLOC").is_ok_and(|v| v == "default") {
+    if opted_out() {
         return false;
     }
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
@@ -47,6 +47,11 @@ pub fn keep_freed_memory() -> bool {
     }
 }
 
+/// Whether `RDPG_MALLOC=default` asks for glibc's own settings.
+fn opted_out() -> bool {
+    std::env::var("RDPG_MALLOC").is_ok_and(|v| v == "default")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -58,8 +63,7 @@ mod tests {
         let applied = keep_freed_memory();
         assert_eq!(
             applied,
-            cfg!(all(target_os = "linux", target_env = "gnu"))
-                && std::env::var("RDPG_MALLOC").map_or(true, |v| v != "default")
+            cfg!(all(target_os = "linux", target_env = "gnu")) && !opted_out()
         );
     }
 }
