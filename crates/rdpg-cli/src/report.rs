@@ -13,7 +13,8 @@ use crate::rundir::{Metric, MovingAverage, RunDir, Summary};
 /// Arguments of `rdpg plot`.
 #[derive(Debug, Args)]
 pub struct PlotArgs {
-    /// Run directories written by `rdpg train`.
+    /// Run directories written by `rdpg train`, or zoo entries (their evaluations: a zoo
+    /// entry ships no training episodes).
     #[arg(required = true)]
     runs: Vec<PathBuf>,
     /// Output PNG.
@@ -24,7 +25,7 @@ pub struct PlotArgs {
 /// Arguments of `rdpg compare`.
 #[derive(Debug, Args)]
 pub struct CompareArgs {
-    /// Run directories written by `rdpg train`.
+    /// Run directories written by `rdpg train`, or zoo entries.
     #[arg(required = true)]
     runs: Vec<PathBuf>,
     /// Also write the Markdown table to this file (it is always printed).
@@ -45,11 +46,16 @@ struct Run {
     evals: Vec<(u64, f64)>,
 }
 
+/// A run directory, or a zoo entry (its evaluations only: it ships no training episodes).
 fn read_run(dir: &Path) -> Result<Run> {
     let run = RunDir::new(dir);
-    let summary = run.read_summary()?;
+    let (summary, metrics) = if run.is_zoo_entry() {
+        crate::zoo::read_as_run(&run)?
+    } else {
+        (run.read_summary()?, run.read_metrics()?)
+    };
     let (mut episodes, mut evals) = (Vec::new(), Vec::new());
-    for m in run.read_metrics()? {
+    for m in metrics {
         match m {
             Metric::Episode { step, ret, .. } => episodes.push((step, ret)),
             Metric::Eval {
@@ -57,13 +63,16 @@ fn read_run(dir: &Path) -> Result<Run> {
             } => evals.push((step, mean_return)),
         }
     }
-    let label = if summary.name.is_empty() {
+    let mut label = if summary.name.is_empty() {
         dir.file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default()
     } else {
         summary.name.clone()
     };
+    if run.is_zoo_entry() {
+        label += " (zoo)";
+    }
     Ok(Run {
         label,
         summary,

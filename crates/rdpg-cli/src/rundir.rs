@@ -280,6 +280,39 @@ impl RunDir {
         Ok((out, kept))
     }
 
+    /// The evaluations of `evals.csv` as [`Metric::Eval`] rows (a zoo entry's copy of its
+    /// run's; a run's own are read from `metrics.jsonl`).
+    pub fn read_evals_csv(&self) -> Result<Vec<Metric>> {
+        let path = self.root.join("evals.csv");
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let mut lines = text.lines();
+        if lines.next() != Some(EVALS_HEADER.trim_end()) {
+            anyhow::bail!(
+                "{}: not an evals.csv (its header must be `{}`)",
+                path.display(),
+                EVALS_HEADER.trim_end()
+            );
+        }
+        let mut out = Vec::new();
+        for (k, line) in lines.enumerate() {
+            let bad = || format!("{}:{}: bad evaluation row `{line}`", path.display(), k + 2);
+            let f: Vec<&str> = line.split(',').collect();
+            if f.len() != 5 {
+                anyhow::bail!(bad());
+            }
+            let num = |i: usize| f[i].parse::<f64>().with_context(bad);
+            out.push(Metric::Eval {
+                step: f[0].parse().with_context(bad)?,
+                mean_return: num(1)?,
+                std_return: num(2)?,
+                success_rate: num(3)?,
+                wall: num(4)?,
+            });
+        }
+        Ok(out)
+    }
+
     /// The run's `summary.json`.
     pub fn read_summary(&self) -> Result<Summary> {
         let path = self.summary();
@@ -893,5 +926,46 @@ impl RunLog {
             m += &format!(", eval {:.1}", e.mean_return);
         }
         m
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn evals_csv_is_read_back_and_bad_rows_are_named() {
+        let dir = std::env::temp_dir().join(format!("rdpg-evals-csv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let run = RunDir::new(&dir);
+        let path = dir.join("evals.csv");
+        std::fs::write(
+            &path,
+            format!("{EVALS_HEADER}25000,-12.5,3.25,0.1,86.550\n"),
+        )
+        .unwrap();
+        let rows = run.read_evals_csv().unwrap();
+        assert_eq!(rows.len(), 1);
+        assert!(matches!(
+            rows[0],
+            Metric::Eval { step: 25000, mean_return, std_return, success_rate, wall }
+                if (mean_return, std_return, success_rate, wall) == (-12.5, 3.25, 0.1, 86.55)
+        ));
+        for (text, needle) in [
+            ("step,return\n".to_string(), "not an evals.csv"),
+            (
+                format!("{EVALS_HEADER}25000,-12.5,3.25,0.1\n"),
+                "evals.csv:2: bad",
+            ),
+            (
+                format!("{EVALS_HEADER}1,2,3,4,5\nx,2,3,4,5\n"),
+                "evals.csv:3: bad",
+            ),
+        ] {
+            std::fs::write(&path, text).unwrap();
+            let err = format!("{:#}", run.read_evals_csv().unwrap_err());
+            assert!(err.contains(needle), "{err}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -11,7 +11,7 @@
 //! - `episode.gif`: the agent on the first test seed.
 //!
 //! `rdpg eval --run zoo/<name>` and `rdpg render --run zoo/<name>` read it as a run directory
-//! whose `best` agent is `agent/`.
+//! whose `best` agent is `agent/`; `rdpg plot` and `rdpg compare` through [`read_as_run`].
 
 use std::path::{Path, PathBuf};
 
@@ -23,7 +23,9 @@ use rdpg_agents::EvalRecord;
 use serde::{Deserialize, Serialize};
 
 use crate::render::{render_run, RenderTarget};
-use crate::rundir::{machine_description, Metric, RunDir, Which};
+use crate::rundir::{
+    machine_description, EvalSummary, Metric, RunDir, Summary, TestSummary, Which,
+};
 
 /// Arguments of `rdpg zoo`.
 #[derive(Debug, Args)]
@@ -260,6 +262,66 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         .with_context(|| format!("renaming {} to {}", tmp.display(), a.out.display()))?;
     println!("{}", serde_json::to_string(&zs)?);
     Ok(())
+}
+
+/// A zoo entry in a run's terms, for `rdpg plot` and `rdpg compare`: its summary as a run's
+/// [`Summary`] (the validation evaluation that chose the agent as `best_eval`, its test as
+/// `test_eval`) and its evaluations. An entry ships no training episodes, so it has no
+/// training-return curve.
+pub fn read_as_run(entry: &RunDir) -> Result<(Summary, Vec<Metric>)> {
+    let path = entry.summary();
+    let zs: ZooSummary = read_json(&path)?;
+    let evals = entry.read_evals_csv()?;
+    let eval_summary = |m: &Metric| match *m {
+        Metric::Eval {
+            step,
+            mean_return,
+            std_return,
+            success_rate,
+            ..
+        } => Some(EvalSummary {
+            step,
+            mean_stock_return: mean_return,
+            std_stock_return: std_return,
+            success_rate,
+        }),
+        Metric::Episode { .. } => None,
+    };
+    let best_eval = evals
+        .iter()
+        .filter(|m| m.step() == zs.agent.steps)
+        .find_map(eval_summary);
+    if best_eval.is_none() {
+        bail!(
+            "{}: no evaluation at the shipped agent's step {} in evals.csv",
+            entry.root().display(),
+            zs.agent.steps
+        );
+    }
+    let summary = Summary {
+        name: zs.name,
+        algo: zs.algo,
+        env: zs.env,
+        train_reward: zs.training_reward,
+        eval_reward: zs.evaluation_reward,
+        steps: zs.training.steps,
+        episodes: zs.training.episodes,
+        wall_seconds: zs.training.wall_seconds,
+        best_r100_train_reward: zs.training.best_r100_train_reward,
+        best_r100_stock_reward: None,
+        last_eval: evals.last().and_then(eval_summary),
+        best_eval,
+        test_eval: Some(TestSummary {
+            step: zs.agent.steps,
+            episodes: zs.test.episodes,
+            first_seed: zs.test.first_seed,
+            mean_stock_return: zs.test.mean_return,
+            std_stock_return: zs.test.std_return,
+            success_rate: zs.test.success_rate,
+        }),
+        machine: Some(zs.machine),
+    };
+    Ok((summary, evals))
 }
 
 fn copy(from: &Path, to: &Path) -> Result<()> {

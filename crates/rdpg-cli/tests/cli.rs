@@ -605,6 +605,27 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         .arg(&zoo)
         .arg("--gif")
         .arg(tmp("zoo.gif")));
+    // `plot` and `compare` take a zoo entry beside runs: its evaluations and its test.
+    ok(rdpg()
+        .arg("plot")
+        .arg(&one)
+        .arg(&zoo)
+        .arg("--out")
+        .arg(tmp("zoo-curves.png")));
+    let out = ok(rdpg()
+        .arg("compare")
+        .arg(&one)
+        .arg(&zoo)
+        .arg("--plot")
+        .arg(tmp("zoo-compare.png")));
+    let table = String::from_utf8(out.stdout).unwrap();
+    let zoo_row = table.lines().find(|l| l.contains("(zoo)")).unwrap();
+    let test = format!(
+        "{:.1} ± {:.1} (4 ep.)",
+        zs["test"]["mean_return"].as_f64().unwrap(),
+        zs["test"]["std_return"].as_f64().unwrap()
+    );
+    assert!(zoo_row.contains(&test), "{zoo_row}");
     fails(&mut zoo_cmd(), &["exists"]);
     fails(
         rdpg()
