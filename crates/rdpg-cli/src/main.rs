@@ -29,7 +29,8 @@ struct Cli {
 enum Command {
     /// Train an agent from an experiment file (TOML) into a run directory.
     Train(train::TrainArgs),
-    /// Evaluate a run's agent deterministically on held-out seeds (stock reward).
+    /// Evaluate a run's agent deterministically on held-out seeds (stock reward): one JSON
+    /// line with the mean, std, success and time-limit shares, every return and length.
     Eval(train::EvalArgs),
     /// Record a trained agent's episodes as a teacher file for experience injection.
     Record(train::RecordArgs),

@@ -44,6 +44,8 @@ struct Run {
     episodes: Vec<(u64, f64)>,
     /// `(step, mean stock return)` of every evaluation.
     evals: Vec<(u64, f64)>,
+    /// Frames per agent step (`train.action_repeat`): the steps above are agent steps.
+    action_repeat: usize,
 }
 
 /// A run directory, or a zoo entry (its evaluations only: it ships no training episodes).
@@ -78,6 +80,7 @@ fn read_run(dir: &Path) -> Result<Run> {
         summary,
         episodes,
         evals,
+        action_repeat: run.experiment()?.train.action_repeat,
     })
 }
 
@@ -94,6 +97,17 @@ fn moving_average(episodes: &[(u64, f64)]) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The x axis of runs with these action repeats: their steps are agent steps, each of `k`
+/// environment frames.
+fn steps_label(repeats: impl Iterator<Item = usize>) -> String {
+    let repeats: Vec<usize> = repeats.collect();
+    match repeats.first() {
+        Some(1) if repeats.iter().all(|&k| k == 1) => "environment steps".into(),
+        Some(&k) if repeats.iter().all(|&r| r == k) => format!("agent steps ({k} frames each)"),
+        _ => "agent steps (action repeats differ)".into(),
+    }
+}
+
 /// Writes the two learning-curve panels of `runs` (training return, evaluation) to `out`.
 fn write_curves(runs: &[Run], out: &Path) -> Result<()> {
     let rewards: Vec<&str> = runs
@@ -105,6 +119,7 @@ fn write_curves(runs: &[Run], out: &Path) -> Result<()> {
     } else {
         "training reward".into()
     };
+    let x_label = steps_label(runs.iter().map(|r| r.action_repeat));
     let series = |f: &dyn Fn(&Run) -> Vec<(f64, f64)>| -> Vec<Series> {
         runs.iter()
             .enumerate()
@@ -118,13 +133,13 @@ fn write_curves(runs: &[Run], out: &Path) -> Result<()> {
     let plots = [
         LinePlot {
             title: "Training return, 100-ep. MA".into(),
-            x_label: "environment steps".into(),
+            x_label: x_label.clone(),
             y_label: format!("return, {reward}, with noise"),
             series: series(&|r| moving_average(&r.episodes)),
         },
         LinePlot {
             title: "Deterministic evaluation".into(),
-            x_label: "environment steps".into(),
+            x_label,
             y_label: "mean return, stock reward".into(),
             series: series(&|r| r.evals.iter().map(|&(s, m)| (s as f64, m)).collect()),
         },
@@ -239,6 +254,19 @@ pub fn compare(a: &CompareArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn steps_are_labelled_by_action_repeat() {
+        assert_eq!(steps_label([1, 1].into_iter()), "environment steps");
+        assert_eq!(
+            steps_label([3, 3].into_iter()),
+            "agent steps (3 frames each)"
+        );
+        assert_eq!(
+            steps_label([1, 3].into_iter()),
+            "agent steps (action repeats differ)"
+        );
+    }
 
     #[test]
     fn moving_average_uses_at_most_100_episodes() {

@@ -735,7 +735,9 @@ impl RunLog {
                     mean_return: *mean_return,
                     std_return: *std_return,
                     success_rate: *success_rate,
+                    time_limit_rate: 0.0,
                     returns: Vec::new(),
+                    lengths: Vec::new(),
                 }),
             }
             let (Metric::Episode { wall, .. } | Metric::Eval { wall, .. }) = &m;

@@ -595,7 +595,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         mean_stock_return: f64,
         std_stock_return: f64,
         success_rate: f64,
+        time_limit_rate: f64,
         returns: &'a [f64],
+        lengths: &'a [usize],
     }
     let line = Line {
         run: a.run.display().to_string(),
@@ -610,7 +612,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         mean_stock_return: r.mean_return,
         std_stock_return: r.std_return,
         success_rate: r.success_rate,
+        time_limit_rate: r.time_limit_rate,
         returns: &r.returns,
+        lengths: &r.lengths,
     };
     println!("{}", serde_json::to_string(&line)?);
     Ok(())

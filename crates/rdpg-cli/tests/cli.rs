@@ -523,6 +523,9 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     );
     assert_eq!(line["returns"].as_array().unwrap().len(), 3);
     assert!(line["metric"].as_str().unwrap().contains("stock reward"));
+    // CueMemory episodes end with the answer (6 steps), never at the time limit.
+    assert_eq!(line["lengths"], serde_json::json!([6, 6, 6]));
+    assert_eq!(line["time_limit_rate"], 0.0);
 
     // `--actions-out`: one line per episode whose actions replay (`rdpg rollout`, the same
     // contract as Gymnasium's) to the reported return.
@@ -543,6 +546,8 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     for (k, ep) in episodes.iter().enumerate() {
         assert_eq!(ep["seed"], 77 + k as u64);
         assert_eq!(ep["return"], line["returns"][k]);
+        assert_eq!(ep["actions"].as_array().unwrap().len(), 6);
+        assert_eq!(line["lengths"][k], 6);
         let csv = actions_csv(ep["actions"].as_array().unwrap());
         let file = tmp("replay.csv");
         std::fs::write(&file, csv).unwrap();

@@ -73,7 +73,8 @@ pub fn evaluate_policy_traced(
     let mut env = rdpg_envs::make_with(&cfg.env, &cfg.eval_env_options())?;
     let space = env.action_space().clone();
     let mut returns = Vec::with_capacity(episodes);
-    let mut successes = 0;
+    let mut lengths = Vec::with_capacity(episodes);
+    let (mut successes, mut time_limits) = (0, 0);
     let mut actions = Vec::new();
     for k in 0..episodes {
         let ep_seed = seed + k as u64;
@@ -88,6 +89,7 @@ pub fn evaluate_policy_traced(
             ret += s.reward;
             if s.done() {
                 successes += s.info.success as usize;
+                time_limits += (s.truncated && !s.terminated) as usize;
                 break;
             }
             obs = s.obs;
@@ -98,6 +100,7 @@ pub fn evaluate_policy_traced(
             actions: &actions,
         })?;
         returns.push(ret);
+        lengths.push(actions.len());
     }
     let m = returns.len().max(1) as f64;
     let mean = returns.iter().sum::<f64>() / m;
@@ -107,6 +110,45 @@ pub fn evaluate_policy_traced(
         mean_return: mean,
         std_return: std,
         success_rate: successes as f64 / m,
+        time_limit_rate: time_limits as f64 / m,
         returns,
+        lengths,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Always the same action.
+    struct Constant(Vec<f32>);
+
+    impl DeterministicPolicy for Constant {
+        fn begin_episode(&mut self) {}
+        fn act(&mut self, _obs: &[f32]) -> Result<Vec<f32>> {
+            Ok(self.0.clone())
+        }
+    }
+
+    fn eval(env: &str, action: Vec<f32>, episodes: usize) -> EvalRecord {
+        let cfg = TrainConfig {
+            env: env.into(),
+            ..TrainConfig::default()
+        };
+        evaluate_policy(&mut Constant(action), &cfg, episodes, 7).unwrap()
+    }
+
+    /// Episodes cut by the time limit are counted apart from those that end in the MDP, and
+    /// every episode's length is its number of actions.
+    #[test]
+    fn evaluation_counts_time_limits_and_lengths() {
+        // Pendulum only ends at its 200-step limit.
+        let r = eval("Pendulum-v1", vec![0.0], 3);
+        assert_eq!((r.time_limit_rate, r.success_rate), (1.0, 0.0));
+        assert_eq!(r.lengths, [200; 3]);
+        // CueMemory ends with the agent's answer, after the cue and the blank steps.
+        let r = eval("CueMemory-v0", vec![1.0], 4);
+        assert_eq!(r.time_limit_rate, 0.0);
+        assert_eq!(r.lengths, [6; 4]);
+    }
 }

@@ -59,8 +59,15 @@ pub struct EvalRecord {
     pub std_return: f64,
     /// Share of episodes that reached the end of the course.
     pub success_rate: f64,
+    /// Share of episodes cut by the time limit (`truncated`): neither finished nor fell. The
+    /// rest ended otherwise (walkers: a fall or leaving the course).
+    #[serde(default)]
+    pub time_limit_rate: f64,
     /// Every episode's stock return.
     pub returns: Vec<f64>,
+    /// Every episode's length in agent steps (of `train.action_repeat` frames each).
+    #[serde(default)]
+    pub lengths: Vec<usize>,
 }
 
 /// Receives progress from [`Trainer::run`] (metrics files, progress bars, tests).
