@@ -2,8 +2,10 @@
 //!
 //! Subcommands: `train` (an experiment file to a run directory), `eval` (a trained agent on
 //! held-out seeds), `record` (a teacher's episodes for experience injection), `plot` and
-//! `compare` (learning curves, a Table-I-shaped comparison), `rollout` (replay a fixed action sequence and print the trajectory as JSON
-//! lines), `render` (an episode to PNG frames and an animated GIF), `bench` (throughput).
+//! `compare` (learning curves, a Table-I-shaped comparison), `rollout` (replay a fixed action
+//! sequence and print the trajectory as JSON lines), `render` (an episode to PNG frames and an
+//! animated GIF), `select` (choose among kept agents on more validation episodes), `zoo` (ship
+//! an agent), `bench` (throughput).
 
 mod bench;
 mod experiment;
@@ -11,6 +13,7 @@ mod render;
 mod report;
 mod rollout;
 mod rundir;
+mod select;
 mod train;
 mod zoo;
 
@@ -42,7 +45,9 @@ enum Command {
     Rollout(rollout::RolloutArgs),
     /// Render an episode to an animated GIF (and optionally PNG frames).
     Render(render::RenderArgs),
-    /// Ship a run's best agent as a zoo entry (weights, config, test evaluation, curves, GIF).
+    /// Choose among a run's kept agents (`run.keep_agents_every`) on more validation episodes.
+    Select(select::SelectArgs),
+    /// Ship a run's best (or selected) agent as a zoo entry (weights, config, test evaluation, curves, GIF).
     Zoo(zoo::ZooArgs),
     /// Measure throughput.
     #[command(subcommand)]
@@ -60,6 +65,7 @@ fn main() -> Result<()> {
         Command::Compare(a) => report::compare(&a),
         Command::Rollout(a) => rollout::run(&a),
         Command::Render(a) => render::run(&a),
+        Command::Select(a) => select::run(&a),
         Command::Zoo(a) => zoo::run(&a),
         Command::Bench(b) => bench::run(&b),
     }

@@ -29,8 +29,9 @@ pub struct RenderArgs {
     /// Drive the episode with the trained agent of this run directory (deterministic).
     #[arg(long, conflicts_with = "policy")]
     run: Option<PathBuf>,
-    /// With `--run`: which agent of the run.
-    #[arg(long, value_enum, default_value_t = Which::Best, requires = "run")]
+    /// With `--run`: which agent of the run (best, latest, selected or the step of a kept
+    /// agent).
+    #[arg(long, default_value = "best", requires = "run")]
     checkpoint: Which,
     /// Seed of the episode.
     #[arg(long, default_value_t = 0)]

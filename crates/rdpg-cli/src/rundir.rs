@@ -23,7 +23,6 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rdpg_agents::{DeterministicPolicy, EvalRecord, UpdateStats};
 use serde::{Deserialize, Serialize};
@@ -31,21 +30,46 @@ use syntaxdot_summary::SummaryWriter;
 
 use crate::experiment::Experiment;
 
-/// Which agent of a run: the best evaluation so far, or the latest checkpoint.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+/// Which agent of a run: `best`, `latest`, `selected` or the step of a kept agent (on the
+/// command line `--checkpoint best|latest|selected|STEP`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Which {
-    /// `checkpoints/best`: the agent of the best evaluation.
+    /// `checkpoints/best`: the agent of the best periodic evaluation.
     Best,
     /// `checkpoints/latest`: the agent of the last checkpoint.
     Latest,
+    /// `checkpoints/selected`: the agent `rdpg select` chose among the kept ones on more
+    /// validation episodes.
+    Selected,
+    /// `checkpoints/agents/<step>`: an agent kept by `run.keep_agents_every`.
+    Kept(u64),
 }
 
-impl Which {
-    /// The checkpoint's directory name.
-    pub fn as_str(self) -> &'static str {
+impl std::fmt::Display for Which {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Which::Best => "best",
-            Which::Latest => "latest",
+            Which::Best => f.write_str("best"),
+            Which::Latest => f.write_str("latest"),
+            Which::Selected => f.write_str("selected"),
+            Which::Kept(step) => write!(f, "{step}"),
+        }
+    }
+}
+
+impl std::str::FromStr for Which {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "best" => Ok(Which::Best),
+            "latest" => Ok(Which::Latest),
+            "selected" => Ok(Which::Selected),
+            _ => s.parse().map(Which::Kept).map_err(|_| {
+                format!(
+                    "`{s}` is not an agent of a run: best, latest, selected or the step of a \
+                     kept agent (run.keep_agents_every)"
+                )
+            }),
         }
     }
 }
@@ -82,9 +106,34 @@ impl RunDir {
         self.root.join("metrics.jsonl")
     }
 
-    /// `checkpoints/<which>`.
+    /// `checkpoints/<which>` (a kept agent: `checkpoints/agents/<step>`).
     pub fn checkpoint(&self, which: Which) -> PathBuf {
-        self.root.join("checkpoints").join(which.as_str())
+        match which {
+            Which::Kept(step) => self.kept_agents().join(step.to_string()),
+            w => self.root.join("checkpoints").join(w.to_string()),
+        }
+    }
+
+    /// `checkpoints/agents`: the agents kept every `run.keep_agents_every` steps.
+    pub fn kept_agents(&self) -> PathBuf {
+        self.root.join("checkpoints").join("agents")
+    }
+
+    /// The steps of the kept agents, in order (an unfinished `<step>.partial` is not one).
+    pub fn kept_steps(&self) -> Result<Vec<u64>> {
+        let dir = self.kept_agents();
+        let mut steps = Vec::new();
+        if !dir.exists() {
+            return Ok(steps);
+        }
+        for e in std::fs::read_dir(&dir).with_context(|| format!("reading {}", dir.display()))? {
+            let e = e.with_context(|| format!("reading {}", dir.display()))?;
+            if let Some(step) = e.file_name().to_str().and_then(|n| n.parse().ok()) {
+                steps.push(step);
+            }
+        }
+        steps.sort_unstable();
+        Ok(steps)
     }
 
     /// The update statistics not yet logged when `checkpoints/latest` was saved.
@@ -152,10 +201,27 @@ impl RunDir {
 
     /// Puts the checkpoints back in order after a crash inside [`RunDir::commit`]: a
     /// `<which>.previous` with no `<which>` becomes `<which>` again; unfinished `.partial`
-    /// directories are removed.
+    /// directories are removed (kept agents' too).
     pub fn recover(&self) -> Result<()> {
-        for which in [Which::Latest, Which::Best] {
-            let dst = self.checkpoint(which);
+        let mut dsts: Vec<PathBuf> = [Which::Latest, Which::Best, Which::Selected]
+            .into_iter()
+            .map(|w| self.checkpoint(w))
+            .collect();
+        dsts.extend(
+            self.kept_steps()?
+                .into_iter()
+                .map(|s| self.checkpoint(Which::Kept(s))),
+        );
+        if let Ok(entries) = std::fs::read_dir(self.kept_agents()) {
+            for e in entries.flatten() {
+                let p = e.path();
+                let ext = p.extension().and_then(|x| x.to_str());
+                if ext == Some("partial") || ext == Some("previous") {
+                    dsts.push(p.with_extension(""));
+                }
+            }
+        }
+        for dst in dsts {
             let prev = dst.with_extension("previous");
             if !dst.exists() && prev.exists() {
                 std::fs::rename(&prev, &dst)
@@ -171,17 +237,26 @@ impl RunDir {
     }
 
     /// Removes `checkpoints/best` when it was chosen by an evaluation after step `upto` (a
-    /// crash between saving it and the next `latest`): the resumed run's metrics end at `upto`,
-    /// so that agent has no evaluation row behind it. The resumed run saves its best again.
-    pub fn drop_best_after(&self, upto: u64) -> Result<()> {
+    /// crash between saving it and the next `latest`), and the agents kept after `upto`: the
+    /// resumed run's metrics end at `upto`, so those agents have no record behind them. The
+    /// resumed run saves them again.
+    pub fn drop_agents_after(&self, upto: u64) -> Result<()> {
         let best = self.checkpoint(Which::Best);
         let step = std::fs::read_to_string(best.join("eval.json"))
             .ok()
             .and_then(|t| serde_json::from_str::<EvalRecord>(&t).ok())
             .map(|e| e.step);
+        let mut drop: Vec<PathBuf> = self
+            .kept_steps()?
+            .into_iter()
+            .filter(|&s| s > upto)
+            .map(|s| self.checkpoint(Which::Kept(s)))
+            .collect();
         if step.is_some_and(|s| s > upto) {
-            std::fs::remove_dir_all(&best)
-                .with_context(|| format!("removing {}", best.display()))?;
+            drop.push(best);
+        }
+        for dir in drop {
+            std::fs::remove_dir_all(&dir).with_context(|| format!("removing {}", dir.display()))?;
         }
         Ok(())
     }
@@ -214,9 +289,10 @@ impl RunDir {
     /// The run's experiment and its agent `which` as a deterministic policy.
     pub fn policy(&self, which: Which) -> Result<(Experiment, Box<dyn DeterministicPolicy>)> {
         let exp = self.experiment()?;
-        if which == Which::Latest && self.is_zoo_entry() {
+        if which != Which::Best && self.is_zoo_entry() {
             anyhow::bail!(
-                "{} is a zoo entry: it ships one agent (the run's best), so drop --checkpoint latest",
+                "{} is a zoo entry: it ships one agent (the run's best or selected one), so \
+                 drop --checkpoint {which}",
                 self.root.display()
             );
         }
@@ -225,6 +301,8 @@ impl RunDir {
             let hint = match which {
                 Which::Best => " (no evaluation has finished yet: try --checkpoint latest)",
                 Which::Latest => "",
+                Which::Selected => " (run `rdpg select` on the run first)",
+                Which::Kept(_) => " (no agent was kept at that step: see checkpoints/agents)",
             };
             anyhow::bail!("{} holds no agent{hint}", dir.display());
         }
@@ -407,6 +485,13 @@ impl Metric {
     pub fn step(&self) -> u64 {
         match self {
             Metric::Episode { step, .. } | Metric::Eval { step, .. } => *step,
+        }
+    }
+
+    /// Wall-clock seconds of the run at the row.
+    pub fn wall(&self) -> f64 {
+        match self {
+            Metric::Episode { wall, .. } | Metric::Eval { wall, .. } => *wall,
         }
     }
 }
@@ -740,8 +825,7 @@ impl RunLog {
                     lengths: Vec::new(),
                 }),
             }
-            let (Metric::Episode { wall, .. } | Metric::Eval { wall, .. }) = &m;
-            log.wall_offset = *wall;
+            log.wall_offset = m.wall();
             log.write_views(&m)?;
         }
         log.new_best = false;
@@ -928,6 +1012,40 @@ impl RunLog {
             m += &format!(", eval {:.1}", e.mean_return);
         }
         m
+    }
+}
+
+/// Copies an agent's files (`agent.json`, `weights.safetensors`; no optimiser, no replay) from
+/// `from` into a new directory `to`, sealed by its own manifest.
+pub fn copy_agent(from: &Path, to: &Path) -> Result<()> {
+    std::fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
+    for f in ["agent.json", "weights.safetensors"] {
+        copy_file(&from.join(f), &to.join(f))?;
+    }
+    rdpg_agents::common::checkpoint::seal(to)?;
+    Ok(())
+}
+
+/// `std::fs::copy` with both paths in the error.
+pub fn copy_file(from: &Path, to: &Path) -> Result<()> {
+    std::fs::copy(from, to)
+        .with_context(|| format!("copying {} to {}", from.display(), to.display()))?;
+    Ok(())
+}
+
+/// Reads and parses a JSON file, naming it in the error.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
+}
+
+/// What a deterministic evaluation's mean is, for JSON output: the stock reward, with the
+/// run's action repeat when it has one.
+pub fn eval_metric(t: &rdpg_agents::TrainConfig) -> String {
+    match t.action_repeat {
+        1 => "deterministic evaluation, stock reward".into(),
+        k => format!("deterministic evaluation, stock reward, action repeat {k}"),
     }
 }
 

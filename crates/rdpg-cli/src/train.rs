@@ -15,7 +15,7 @@ use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats
 use serde::Serialize;
 
 use crate::experiment::Experiment;
-use crate::rundir::{Metric, RunDir, RunLog, TestSummary, Which};
+use crate::rundir::{copy_agent, eval_metric, Metric, RunDir, RunLog, TestSummary, Which};
 
 /// Arguments of `rdpg train`.
 #[derive(Debug, Args)]
@@ -184,8 +184,9 @@ fn check_memory(exp: &Experiment) -> Result<()> {
     Ok(())
 }
 
-/// What a resume may change in a run's `config.toml`: the budget, the checkpoint cadence and
-/// `agent.parallel_twins` (a speed setting that changes no number; the trainer takes it).
+/// What a resume may change in a run's `config.toml`: the budget, the checkpoint and kept-agent
+/// cadences and `agent.parallel_twins` (a speed setting that changes no number; the trainer
+/// takes it).
 /// Any other edit since the checkpoint (`then`) would be ignored by the restored trainer while
 /// reports showed it as in effect, so it is refused, naming the keys.
 fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Result<()> {
@@ -196,6 +197,7 @@ fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Resul
         }
         if let Some(toml::Value::Table(run)) = t.get_mut("run") {
             run.remove("checkpoint_every");
+            run.remove("keep_agents_every");
         }
         if let Some(toml::Value::Table(agent)) = t.get_mut("agent") {
             agent.remove("parallel_twins");
@@ -207,8 +209,8 @@ fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Resul
     if !changed.is_empty() {
         bail!(
             "{} was edited since the last checkpoint ({}): a resumed run keeps the settings it \
-             was started with, except train.total_steps (or --steps), run.checkpoint_every \
-             and agent.parallel_twins. \
+             was started with, except train.total_steps (or --steps), run.checkpoint_every, \
+             run.keep_agents_every and agent.parallel_twins. \
              Undo the edit, or start a new run from the edited file with --config",
             path.display(),
             changed.join(", ")
@@ -232,12 +234,25 @@ fn diff_keys(prefix: &str, a: &toml::Table, b: &toml::Table, out: &mut Vec<Strin
     }
 }
 
-/// Saves the agent alone (the `best` checkpoint), with the evaluation that chose it; written
-/// and moved into place like [`save_latest`].
-fn save_best(trainer: &dyn Trainer, run: &RunDir, eval: Option<&EvalRecord>) -> Result<()> {
-    let dst = run.checkpoint(Which::Best);
+/// Saves the agent alone as checkpoint `which` (`best` with its optimiser state; a kept agent
+/// without, half the size), with the evaluation at its step if there is one; written and moved
+/// into place like [`save_latest`].
+fn save_agent(
+    trainer: &dyn Trainer,
+    run: &RunDir,
+    which: Which,
+    eval: Option<&EvalRecord>,
+) -> Result<()> {
+    let dst = run.checkpoint(which);
     let tmp = run.fresh_partial(&dst)?;
-    trainer.save_agent(&tmp.join("agent"))?;
+    if let Which::Kept(_) = which {
+        let full = tmp.join("full");
+        trainer.save_agent(&full)?;
+        copy_agent(&full, &tmp.join("agent"))?;
+        std::fs::remove_dir_all(&full).with_context(|| format!("removing {}", full.display()))?;
+    } else {
+        trainer.save_agent(&tmp.join("agent"))?;
+    }
     if let Some(e) = eval {
         let p = tmp.join("eval.json");
         std::fs::write(&p, serde_json::to_string_pretty(e)?)
@@ -277,7 +292,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let latest = run.checkpoint(Which::Latest);
         let mut trainer = rdpg_agents::load_trainer(&latest)
             .with_context(|| format!("resuming {}", dir.display()))?;
-        run.drop_best_after(trainer.steps())?;
+        run.drop_agents_after(trainer.steps())?;
         // The checkpoint's own copy of the experiment: what the trainer was built from.
         let snapshot = latest.join("config.toml");
         if snapshot.exists() {
@@ -348,10 +363,12 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         );
     }
     let mut next_ckpt = every(exp.run.checkpoint_every, trainer.steps());
+    let mut next_keep = every(exp.run.keep_agents_every, trainer.steps());
     while trainer.steps() < total {
-        // Stop at each evaluation (to keep the best agent) and checkpoint.
+        // Stop at each evaluation (to keep the best agent), checkpoint and kept agent.
         let target = total
             .min(next_ckpt)
+            .min(next_keep)
             .min(every(exp.train.eval_every, trainer.steps()));
         let mut obs = Observer::new(&mut log);
         trainer.run(target, &mut obs)?;
@@ -360,7 +377,13 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             return Err(e);
         }
         if std::mem::take(&mut log.new_best) {
-            save_best(trainer.as_ref(), &run, log.best_eval.as_ref())?;
+            save_agent(trainer.as_ref(), &run, Which::Best, log.best_eval.as_ref())?;
+        }
+        if trainer.steps() >= next_keep {
+            let step = trainer.steps();
+            let eval = log.last_eval.as_ref().filter(|e| e.step == step);
+            save_agent(trainer.as_ref(), &run, Which::Kept(step), eval)?;
+            next_keep = every(exp.run.keep_agents_every, step);
         }
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
@@ -397,7 +420,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             return Err(e);
         }
         if std::mem::take(&mut log.new_best) {
-            save_best(trainer.as_ref(), &run, log.best_eval.as_ref())?;
+            save_agent(trainer.as_ref(), &run, Which::Best, log.best_eval.as_ref())?;
         }
     }
     log.sync()?;
@@ -435,8 +458,9 @@ pub struct EvalArgs {
     /// Evaluation episodes (default: the run's `train.test_episodes`).
     #[arg(long)]
     episodes: Option<usize>,
-    /// Which agent of the run.
-    #[arg(long, value_enum, default_value_t = Which::Best)]
+    /// Which agent of the run: best, latest, selected (by `rdpg select`) or the step of a kept
+    /// agent.
+    #[arg(long, default_value = "best")]
     checkpoint: Which,
     /// First seed (default: the run's test seeds, `train.test_seed`, which model selection
     /// never saw).
@@ -456,8 +480,9 @@ pub struct RecordArgs {
     /// The teacher: a run directory written by `rdpg train`.
     #[arg(long)]
     run: PathBuf,
-    /// Which agent of the run.
-    #[arg(long, value_enum, default_value_t = Which::Best)]
+    /// Which agent of the run: best, latest, selected (by `rdpg select`) or the step of a kept
+    /// agent.
+    #[arg(long, default_value = "best")]
     checkpoint: Which,
     /// Episodes to record.
     #[arg(long, default_value_t = 20)]
@@ -587,7 +612,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     #[derive(Serialize)]
     struct Line<'a> {
         run: String,
-        checkpoint: &'a str,
+        checkpoint: String,
         env: &'a str,
         episodes: usize,
         first_seed: u64,
@@ -601,14 +626,11 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     }
     let line = Line {
         run: a.run.display().to_string(),
-        checkpoint: a.checkpoint.as_str(),
+        checkpoint: a.checkpoint.to_string(),
         env: &exp.train.env,
         episodes,
         first_seed: seed,
-        metric: match exp.train.action_repeat {
-            1 => "deterministic evaluation, stock reward".into(),
-            k => format!("deterministic evaluation, stock reward, action repeat {k}"),
-        },
+        metric: eval_metric(&exp.train),
         mean_stock_return: r.mean_return,
         std_stock_return: r.std_return,
         success_rate: r.success_rate,

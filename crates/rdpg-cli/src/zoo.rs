@@ -1,4 +1,5 @@
-//! `rdpg zoo`: ships a run's best agent as a zoo entry, small enough for git.
+//! `rdpg zoo`: ships a run's best (or `rdpg select`ed) agent as a zoo entry, small enough for
+//! git.
 //!
 //! A zoo entry `zoo/<name>/` holds:
 //! - `agent/`: the agent's `agent.json` and `weights.safetensors` (no optimiser state, no
@@ -13,27 +14,31 @@
 //! `rdpg eval --run zoo/<name>` and `rdpg render --run zoo/<name>` read it as a run directory
 //! whose `best` agent is `agent/`; `rdpg plot` and `rdpg compare` through [`read_as_run`].
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use rdpg_agents::common::checkpoint::seal;
 use rdpg_agents::common::evaluate_policy;
 use rdpg_agents::EvalRecord;
 use serde::{Deserialize, Serialize};
 
 use crate::render::{render_run, RenderTarget};
 use crate::rundir::{
-    machine_description, EvalSummary, Metric, RunDir, Summary, TestSummary, Which,
+    copy_agent, copy_file, machine_description, read_json, EvalSummary, Metric, RunDir, Summary,
+    TestSummary, Which,
 };
 
 /// Arguments of `rdpg zoo`.
 #[derive(Debug, Args)]
 pub struct ZooArgs {
-    /// Run directory written by `rdpg train`; its best agent (chosen on the validation seeds)
-    /// is shipped.
+    /// Run directory written by `rdpg train`; its agent `--checkpoint` (chosen on the
+    /// validation seeds) is shipped.
     #[arg(long)]
     run: PathBuf,
+    /// The agent to ship: `best` (the best periodic evaluation) or `selected` (chosen by
+    /// `rdpg select` on more validation episodes).
+    #[arg(long, default_value = "best")]
+    checkpoint: Which,
     /// The zoo entry to create, e.g. `zoo/walker-td3`. Must not exist.
     #[arg(long)]
     out: PathBuf,
@@ -108,7 +113,14 @@ pub struct ZooAgent {
     pub wall_seconds: Option<f64>,
     /// Its validation evaluation (the one that chose it): mean stock return.
     pub validation_mean_return: f64,
-    /// Validation episodes.
+    /// Its standard deviation over the validation episodes (entries before 2026-12-03: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_std_return: Option<f64>,
+    /// Its success share on the validation episodes (entries before 2026-12-03: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_success_rate: Option<f64>,
+    /// Validation episodes: the periodic evaluation's (`best`), or `rdpg select`'s
+    /// (`selected`).
     pub validation_episodes: usize,
 }
 
@@ -143,6 +155,13 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     if a.episodes == Some(0) {
         bail!("--episodes must be at least 1");
     }
+    if !matches!(a.checkpoint, Which::Best | Which::Selected) {
+        bail!(
+            "--checkpoint {}: a zoo entry ships an agent chosen on the validation seeds, \
+             `best` or `selected` (`rdpg select` chooses among kept agents)",
+            a.checkpoint
+        );
+    }
     let exp = run.experiment()?;
     let summary = run.read_summary()?;
     // Write into a temporary sibling, then rename: no half-written entry is left behind.
@@ -152,19 +171,17 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
     }
-    std::fs::create_dir_all(tmp.join("agent"))
-        .with_context(|| format!("creating {}", tmp.display()))?;
     // Copy first, then test the copy: what ships is what was tested, even if the run is
     // still training and commits a new best meanwhile.
-    let best_dir = run.checkpoint(Which::Best);
-    let agent_dir = run.agent(Which::Best);
-    for f in ["agent.json", "weights.safetensors"] {
-        copy(&agent_dir.join(f), &tmp.join("agent").join(f))?;
+    let agent_dir = run.agent(a.checkpoint);
+    if !agent_dir.exists() {
+        // The message of a missing agent, with its hint.
+        run.policy(a.checkpoint)?;
     }
-    seal(&tmp.join("agent"))?;
-    let chosen: EvalRecord = read_json(&best_dir.join("eval.json"))?;
-    copy(&run.config(), &tmp.join("config.toml"))?;
-    copy(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
+    copy_agent(&agent_dir, &tmp.join("agent"))?;
+    let chosen: EvalRecord = read_json(&run.checkpoint(a.checkpoint).join("eval.json"))?;
+    copy_file(&run.config(), &tmp.join("config.toml"))?;
+    copy_file(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
     let agent_meta: serde_json::Value = read_json(&tmp.join("agent").join("agent.json"))?;
     let updates = agent_meta["updates"].as_u64().with_context(|| {
         format!(
@@ -172,10 +189,14 @@ pub fn run(a: &ZooArgs) -> Result<()> {
             agent_dir.join("agent.json").display()
         )
     })?;
-    let wall_at_best = run.read_metrics()?.iter().find_map(|m| match m {
-        Metric::Eval { step, wall, .. } if *step == chosen.step => Some(*wall),
-        _ => None,
-    });
+    // The run's clock when the agent was saved: its evaluation's row, or (a kept agent
+    // between evaluations) the last row before it.
+    let metrics = run.read_metrics()?;
+    let wall_at_best = metrics
+        .iter()
+        .find(|m| matches!(m, Metric::Eval { step, .. } if *step == chosen.step))
+        .or_else(|| metrics.iter().rev().find(|m| m.step() <= chosen.step))
+        .map(Metric::wall);
     let entry = RunDir::new(&tmp);
     let (_, mut policy) = entry.policy(Which::Best)?;
     let t = &exp.train;
@@ -238,6 +259,8 @@ pub fn run(a: &ZooArgs) -> Result<()> {
             updates,
             wall_seconds: wall_at_best,
             validation_mean_return: chosen.mean_return,
+            validation_std_return: Some(chosen.std_return),
+            validation_success_rate: Some(chosen.success_rate),
             validation_episodes: chosen.returns.len(),
         },
         training: ZooTraining {
@@ -287,10 +310,26 @@ pub fn read_as_run(entry: &RunDir) -> Result<(Summary, Vec<Metric>)> {
         }),
         Metric::Episode { .. } => None,
     };
-    let best_eval = evals
-        .iter()
-        .filter(|m| m.step() == zs.agent.steps)
-        .find_map(eval_summary);
+    // The evaluation that chose the agent: `rdpg select`'s when the entry records it,
+    // otherwise the periodic one at its step.
+    let selected = match (
+        zs.agent.validation_std_return,
+        zs.agent.validation_success_rate,
+    ) {
+        (Some(std), Some(success)) => Some(EvalSummary {
+            step: zs.agent.steps,
+            mean_stock_return: zs.agent.validation_mean_return,
+            std_stock_return: std,
+            success_rate: success,
+        }),
+        _ => None,
+    };
+    let best_eval = selected.or_else(|| {
+        evals
+            .iter()
+            .filter(|m| m.step() == zs.agent.steps)
+            .find_map(eval_summary)
+    });
     if best_eval.is_none() {
         bail!(
             "{}: no evaluation at the shipped agent's step {} in evals.csv",
@@ -322,16 +361,4 @@ pub fn read_as_run(entry: &RunDir) -> Result<(Summary, Vec<Metric>)> {
         machine: Some(zs.machine),
     };
     Ok((summary, evals))
-}
-
-fn copy(from: &Path, to: &Path) -> Result<()> {
-    std::fs::copy(from, to)
-        .with_context(|| format!("copying {} to {}", from.display(), to.display()))?;
-    Ok(())
-}
-
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
 }

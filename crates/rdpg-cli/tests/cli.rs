@@ -640,6 +640,162 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     );
 }
 
+/// `run.keep_agents_every` keeps weights-only agents without changing the run; `rdpg select`
+/// chooses among them (and `best`) on validation seeds, never the test seeds; `eval` and `zoo`
+/// take the choice.
+#[test]
+fn kept_agents_are_selected_on_validation_seeds_and_shipped() {
+    let cfg = configs_dir().join("cue-rdpg.toml");
+    let train = |name: &str, keep: u64| -> PathBuf {
+        let out = tmp(name);
+        let _ = std::fs::remove_dir_all(&out);
+        let mut c = rdpg();
+        c.args(["train", "--quiet", "--steps", "600", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&out);
+        for s in [
+            "off_policy.warmup_steps=200".to_string(),
+            "train.eval_every=200".into(),
+            "train.eval_episodes=5".into(),
+            format!("run.keep_agents_every={keep}"),
+        ] {
+            c.args(["--set", &s]);
+        }
+        ok(&mut c);
+        out
+    };
+    let plain = train("keep-none", 0);
+    let run = train("keep-150", 150);
+    // Keeping agents changes nothing in the run.
+    assert_eq!(latest_weights(&plain), latest_weights(&run));
+    assert_eq!(episode_rows(&plain), episode_rows(&run));
+    assert!(!plain.join("checkpoints/agents").exists());
+    let kept = |step: u64| run.join(format!("checkpoints/agents/{step}"));
+    let mut steps: Vec<u64> = std::fs::read_dir(run.join("checkpoints/agents"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_str().unwrap().parse().unwrap())
+        .collect();
+    steps.sort_unstable();
+    assert_eq!(steps, [150, 300, 450, 600]);
+    for &s in &steps {
+        assert!(kept(s).join("agent/weights.safetensors").is_file());
+        assert!(!kept(s).join("replay.bin").exists());
+        assert!(!kept(s).join("agent/optim.safetensors").exists());
+    }
+    // An agent kept at an evaluation carries it (600), one between evaluations does not.
+    assert_eq!(json_file(&kept(600).join("eval.json"))["step"], 600);
+    assert!(!kept(150).join("eval.json").exists());
+    assert_eq!(
+        std::fs::read(kept(600).join("agent/weights.safetensors")).unwrap(),
+        latest_weights(&run)
+    );
+
+    let select = |extra: &[&str]| {
+        let mut c = rdpg();
+        c.args(["select", "--run"]).arg(&run).args(extra);
+        c
+    };
+    fails(
+        &mut select(&["--seed", "2999990", "--episodes", "20"]),
+        &["overlap the run's test seeds 3000000..3000100"],
+    );
+    // Without kept agents `best` is the one candidate.
+    let out = ok(rdpg()
+        .args(["select", "--episodes", "2", "--run"])
+        .arg(&plain));
+    let sel: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(sel["candidates"][0]["checkpoint"], "best");
+    assert_eq!(sel["candidates"].as_array().unwrap().len(), 1);
+    let out = ok(&mut select(&["--episodes", "8"]));
+    let sel: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        sel,
+        json_file(&run.join("checkpoints/selected/selection.json"))
+    );
+    assert_eq!(
+        (sel["episodes"].as_u64(), sel["first_seed"].as_u64()),
+        (Some(8), Some(1_000_000))
+    );
+    let cands = sel["candidates"].as_array().unwrap();
+    let best_step = json_file(&run.join("checkpoints/best/eval.json"))["step"]
+        .as_u64()
+        .unwrap();
+    // The kept agents, and `best` unless one of them is at its step.
+    let expect = if steps.contains(&best_step) { 4 } else { 5 };
+    assert_eq!(cands.len(), expect, "{sel}");
+    let mean = |c: &Value| c["mean_stock_return"].as_f64().unwrap();
+    let top = cands.iter().map(mean).fold(f64::NEG_INFINITY, f64::max);
+    let chosen = cands.iter().find(|c| mean(c) == top).unwrap();
+    assert_eq!(sel["chosen_step"], chosen["step"]);
+    let chosen_eval = json_file(&run.join("checkpoints/selected/eval.json"));
+    assert_eq!(chosen_eval["step"], chosen["step"]);
+    assert_eq!(chosen_eval["returns"].as_array().unwrap().len(), 8);
+    // `eval --checkpoint selected` on the same seeds gives the same mean; a kept agent by step.
+    let eval = |which: &str, extra: &[&str]| {
+        let mut c = rdpg();
+        c.args(["eval", "--checkpoint", which, "--run"])
+            .arg(&run)
+            .args(extra);
+        c
+    };
+    let out = ok(&mut eval(
+        "selected",
+        &["--episodes", "8", "--seed", "1000000"],
+    ));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(line["mean_stock_return"].as_f64(), Some(top));
+    assert_eq!(line["checkpoint"], "selected");
+    let out = ok(&mut eval("300", &["--episodes", "8", "--seed", "1000000"]));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let c300 = cands.iter().find(|c| c["step"] == 300).unwrap();
+    assert_eq!(line["mean_stock_return"], c300["mean_stock_return"]);
+    fails(&mut eval("310", &[]), &["no agent was kept at that step"]);
+    fails(&mut eval("worst", &[]), &["is not an agent of a run"]);
+    // The zoo ships the selected agent, with the selection's validation.
+    let zoo = tmp("zoo-selected");
+    let _ = std::fs::remove_dir_all(&zoo);
+    let zoo_cmd = |which: &str| {
+        let mut c = rdpg();
+        c.args([
+            "zoo",
+            "--episodes",
+            "3",
+            "--gif-steps",
+            "5",
+            "--checkpoint",
+            which,
+            "--run",
+        ])
+        .arg(&run)
+        .arg("--out")
+        .arg(&zoo);
+        c
+    };
+    fails(&mut zoo_cmd("latest"), &["`best` or `selected`"]);
+    ok(&mut zoo_cmd("selected"));
+    let zs = json_file(&zoo.join("summary.json"));
+    assert_eq!(zs["agent"]["steps"], sel["chosen_step"]);
+    assert_eq!(zs["agent"]["validation_episodes"], 8);
+    assert_eq!(zs["agent"]["validation_mean_return"].as_f64(), Some(top));
+    assert_eq!(
+        std::fs::read(zoo.join("agent/weights.safetensors")).unwrap(),
+        std::fs::read(run.join("checkpoints/selected/agent/weights.safetensors")).unwrap()
+    );
+    // A resume drops agents kept after its checkpoint (they have no record behind them) and
+    // may change the cadence.
+    std::fs::create_dir_all(kept(700).join("agent")).unwrap();
+    let text = std::fs::read_to_string(run.join("config.toml"))
+        .unwrap()
+        .replace("keep_agents_every = 150", "keep_agents_every = 100");
+    std::fs::write(run.join("config.toml"), text).unwrap();
+    ok(rdpg()
+        .args(["train", "--quiet", "--steps", "800", "--resume"])
+        .arg(&run));
+    assert!(kept(700).join("agent/weights.safetensors").is_file());
+    assert!(kept(800).join("eval.json").is_file());
+}
+
 /// Unknown keys, bad values and bad overrides are rejected with the key's name.
 #[test]
 fn train_rejects_bad_configs_naming_the_key() {
