@@ -320,10 +320,11 @@ impl VecEnv {
 
 /// A trained agent of a run or zoo directory, acting deterministically on full observations
 /// of its environment (a run trained with hidden observation components drops them itself):
-/// `Policy(path)`.
+/// `Policy(path, checkpoint="best")`.
 #[pyclass(module = "rdpg._rdpg", unsendable)]
 pub struct Policy {
-    dir: PathBuf,
+    /// The agent's directory.
+    agent: PathBuf,
     algo: Algo,
     train: TrainConfig,
     /// One copy per environment of the batched form (each keeps its own recurrent state).
@@ -337,10 +338,6 @@ pub struct Policy {
 }
 
 impl Policy {
-    fn agent_dir(&self) -> PathBuf {
-        agent_dir(&self.dir)
-    }
-
     /// Copy `i`'s action for a full observation of the env: the run's observation mask and
     /// previous-action input applied as in training; remembers the action.
     fn act_one(&mut self, i: usize, obs: &[f32]) -> PyResult<Vec<f32>> {
@@ -363,7 +360,7 @@ impl Policy {
 
     fn ensure_copies(&mut self, n: usize) -> PyResult<()> {
         while self.copies.len() < n {
-            let p = rdpg_agents::load_policy(self.algo, &self.agent_dir()).map_err(value_err)?;
+            let p = rdpg_agents::load_policy(self.algo, &self.agent).map_err(value_err)?;
             self.copies.push(p);
             self.prev.push(vec![0.0; self.act_low.len()]);
         }
@@ -371,20 +368,47 @@ impl Policy {
     }
 }
 
-/// The agent directory of a run (`checkpoints/best/agent`) or zoo entry (`agent/`).
-fn agent_dir(dir: &Path) -> PathBuf {
+/// The agent directory of a zoo entry (`agent/`, its one agent: `best`) or of a run's agent
+/// `checkpoint`, as `rdpg eval --checkpoint` names it: `best`, `latest`, `selected`
+/// (`checkpoints/<name>/agent`) or the step of a kept agent (`checkpoints/agents/<step>/agent`).
+fn agent_dir(dir: &Path, checkpoint: &str) -> PyResult<PathBuf> {
     let zoo = dir.join("agent");
-    if zoo.join("agent.json").exists() {
-        zoo
-    } else {
-        dir.join("checkpoints").join("best").join("agent")
+    if zoo.join("agent.json").exists() && !dir.join("checkpoints").exists() {
+        if checkpoint != "best" {
+            return Err(value_err(format!(
+                "{} is a zoo entry: it ships one agent, so drop checkpoint={checkpoint:?}",
+                dir.display()
+            )));
+        }
+        return Ok(zoo);
     }
+    let ckpts = dir.join("checkpoints");
+    let which = match checkpoint {
+        "best" | "latest" | "selected" => ckpts.join(checkpoint),
+        step if step.parse::<u64>().is_ok() => ckpts.join("agents").join(step),
+        other => {
+            return Err(value_err(format!(
+                "checkpoint={other:?} is not an agent of a run: \"best\", \"latest\", \
+                 \"selected\" or the step of a kept agent"
+            )))
+        }
+    };
+    let agent = which.join("agent");
+    if !agent.exists() {
+        return Err(value_err(format!(
+            "{} holds no agent {checkpoint:?} ({} does not exist)",
+            dir.display(),
+            agent.display()
+        )));
+    }
+    Ok(agent)
 }
 
 #[pymethods]
 impl Policy {
     #[new]
-    fn new(path: PathBuf) -> PyResult<Self> {
+    #[pyo3(signature = (path, checkpoint = "best"))]
+    fn new(path: PathBuf, checkpoint: &str) -> PyResult<Self> {
         let config = path.join("config.toml");
         let text = std::fs::read_to_string(&config).map_err(|e| {
             value_err(format!(
@@ -412,7 +436,7 @@ impl Policy {
             obs_dim: env.observation_space().dim(),
             act_low: env.action_space().low.clone(),
             act_high: env.action_space().high.clone(),
-            dir: path,
+            agent: agent_dir(&path, checkpoint)?,
             algo,
             train,
             copies: Vec::new(),

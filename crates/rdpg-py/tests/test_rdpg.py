@@ -277,3 +277,34 @@ def test_a_damaged_policy_directory_is_refused(trained_run, tmp_path):
     os.remove(bad / "config.toml")
     with pytest.raises(ValueError, match="not a run or zoo directory"):
         rdpg.Policy.load(bad)
+
+
+def test_a_policy_loads_any_agent_of_a_run(trained_run):
+    # The run's latest agent, as `rdpg eval --checkpoint latest` scores it.
+    out = subprocess.run(
+        [str(_rdpg_binary()), "eval", "--run", str(trained_run), "--checkpoint", "latest",
+         "--episodes", "4"],
+        check=True, capture_output=True, text=True,
+    )
+    want = json.loads(out.stdout)["returns"]
+    policy = rdpg.Policy.load(trained_run, checkpoint="latest")
+    env = gym.make(f"rdpg/{policy.env_id}")
+    got = []
+    for k in range(4):
+        obs, _ = env.reset(seed=3_000_000 + k)
+        policy.reset()
+        ret, done = 0.0, False
+        while not done:
+            obs, r, term, trunc, _ = env.step(policy.act(obs))
+            ret += r
+            done = term or trunc
+        got.append(ret)
+    assert got == want
+    with pytest.raises(ValueError, match="not an agent of a run"):
+        rdpg.Policy.load(trained_run, checkpoint="worst")
+    with pytest.raises(ValueError, match="holds no agent"):
+        rdpg.Policy.load(trained_run, checkpoint=123)
+    zoo = ROOT / "zoo" / "walker-td3"
+    if zoo.is_dir():
+        with pytest.raises(ValueError, match="zoo entry"):
+            rdpg.Policy.load(zoo, checkpoint="latest")

@@ -183,7 +183,8 @@ def make_vec(env_id: str, num_envs: int, **kwargs: Any) -> RdpgVectorEnv:
 class Policy:
     """A trained rdpg agent (a run directory, or a zoo entry), acting deterministically.
 
-    ``Policy.load(path)``; ``reset()`` at the start of each episode (recurrent agents keep
+    ``Policy.load(path, checkpoint="best")`` (a run's ``"latest"``, ``"selected"`` by
+    ``rdpg select``, or a kept agent's step; a zoo entry has its one agent); ``reset()`` at the start of each episode (recurrent agents keep
     their state inside); ``act(obs)`` for one observation of a plain Gymnasium env of the
     agent's ``env_id`` (a run trained with hidden observation components drops them itself);
     ``act_batch(obs)`` for ``[n, obs_dim]`` observations of a vector env, each row with its
@@ -203,9 +204,9 @@ class Policy:
         self.action_space = _spaces(*one.action_bounds())
 
     @classmethod
-    def load(cls, path: str | Path) -> "Policy":
+    def load(cls, path: str | Path, checkpoint: str | int = "best") -> "Policy":
         path = Path(path)
-        return cls(_rdpg.Policy(str(path)), path)
+        return cls(_rdpg.Policy(str(path), str(checkpoint)), path)
 
     def reset(self) -> None:
         self._p.reset()
