@@ -222,38 +222,45 @@ impl RunDir {
             }
         }
         for dst in dsts {
-            let prev = dst.with_extension("previous");
-            if !dst.exists() && prev.exists() {
-                std::fs::rename(&prev, &dst)
-                    .with_context(|| format!("restoring {}", prev.display()))?;
-            }
-            let tmp = dst.with_extension("partial");
-            if tmp.exists() {
-                std::fs::remove_dir_all(&tmp)
-                    .with_context(|| format!("removing {}", tmp.display()))?;
-            }
+            self.recover_one(&dst)?;
+        }
+        Ok(())
+    }
+
+    /// [`RunDir::recover`] for one checkpoint directory `dst`.
+    pub fn recover_one(&self, dst: &Path) -> Result<()> {
+        let prev = dst.with_extension("previous");
+        if !dst.exists() && prev.exists() {
+            std::fs::rename(&prev, dst).with_context(|| format!("restoring {}", prev.display()))?;
+        }
+        let tmp = dst.with_extension("partial");
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
         }
         Ok(())
     }
 
     /// Removes `checkpoints/best` when it was chosen by an evaluation after step `upto` (a
-    /// crash between saving it and the next `latest`), and the agents kept after `upto`: the
-    /// resumed run's metrics end at `upto`, so those agents have no record behind them. The
-    /// resumed run saves them again.
+    /// crash between saving it and the next `latest`), the agents kept after `upto` and a
+    /// `selected` agent from after `upto`: the resumed run's metrics end at `upto`, so those
+    /// agents have no record behind them. The resumed run saves `best` and the kept ones again.
     pub fn drop_agents_after(&self, upto: u64) -> Result<()> {
-        let best = self.checkpoint(Which::Best);
-        let step = std::fs::read_to_string(best.join("eval.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<EvalRecord>(&t).ok())
-            .map(|e| e.step);
+        let step = |which: Which| {
+            std::fs::read_to_string(self.checkpoint(which).join("eval.json"))
+                .ok()
+                .and_then(|t| serde_json::from_str::<EvalRecord>(&t).ok())
+                .map(|e| e.step)
+        };
         let mut drop: Vec<PathBuf> = self
             .kept_steps()?
             .into_iter()
             .filter(|&s| s > upto)
             .map(|s| self.checkpoint(Which::Kept(s)))
             .collect();
-        if step.is_some_and(|s| s > upto) {
-            drop.push(best);
+        for which in [Which::Best, Which::Selected] {
+            if step(which).is_some_and(|s| s > upto) {
+                drop.push(self.checkpoint(which));
+            }
         }
         for dir in drop {
             std::fs::remove_dir_all(&dir).with_context(|| format!("removing {}", dir.display()))?;

@@ -23,7 +23,7 @@ use rdpg_agents::common::evaluate_policy;
 use rdpg_agents::EvalRecord;
 use serde::{Deserialize, Serialize};
 
-use crate::rundir::{copy_agent, eval_metric, read_json, RunDir, Which};
+use crate::rundir::{copy_agent, eval_metric, RunDir, Which};
 
 /// Arguments of `rdpg select`.
 #[derive(Debug, Args)]
@@ -90,7 +90,11 @@ pub fn run(a: &SelectArgs) -> Result<()> {
     let exp = run.experiment()?;
     let t = &exp.train;
     let seed = a.seed.unwrap_or(t.eval_seed);
-    let (lo, hi) = (seed, seed.saturating_add(a.episodes as u64));
+    let bad_seed = || anyhow::anyhow!("--seed {seed} + {} episodes overflows", a.episodes);
+    let (lo, hi) = (
+        seed,
+        seed.checked_add(a.episodes as u64).ok_or_else(bad_seed)?,
+    );
     let (tlo, thi) = (
         t.test_seed,
         t.test_seed.saturating_add(t.test_episodes as u64),
@@ -101,19 +105,27 @@ pub fn run(a: &SelectArgs) -> Result<()> {
              selection must not see the seeds its agent is tested on (pick another --seed)"
         );
     }
-    // Candidates: the kept agents from `--from` on, and `best` unless a kept agent has its step.
-    let mut candidates: Vec<(Which, u64)> = run
+    // A `select` interrupted while it saved leaves `selected.previous`: put it back first.
+    let dst = run.checkpoint(Which::Selected);
+    run.recover_one(&dst)?;
+    // Everything is written into `selected.partial`, then moved into place.
+    let tmp = run.fresh_partial(&dst)?;
+    // Candidates (name, step, agent directory): the kept agents from `--from` on (they never
+    // change), and a snapshot of `best` (a running `rdpg train` may replace it meanwhile)
+    // unless a kept agent has its step.
+    let mut candidates: Vec<(Which, u64, PathBuf)> = run
         .kept_steps()?
         .into_iter()
         .filter(|&s| s >= a.from)
-        .map(|s| (Which::Kept(s), s))
+        .map(|s| (Which::Kept(s), s, run.agent(Which::Kept(s))))
         .collect();
-    let best_eval = run.checkpoint(Which::Best).join("eval.json");
-    if best_eval.exists() {
-        let e: EvalRecord = read_json(&best_eval)?;
-        if !candidates.iter().any(|&(_, s)| s == e.step) {
-            candidates.push((Which::Best, e.step));
-            candidates.sort_by_key(|&(_, s)| s);
+    if let Some(step) = snapshot_best(&run, &tmp.join("best"))? {
+        if candidates.iter().any(|c| c.1 == step) {
+            std::fs::remove_dir_all(tmp.join("best"))
+                .with_context(|| format!("removing {}", tmp.join("best").display()))?;
+        } else {
+            candidates.push((Which::Best, step, tmp.join("best")));
+            candidates.sort_by_key(|c| c.1);
         }
     }
     if candidates.is_empty() {
@@ -131,11 +143,12 @@ pub fn run(a: &SelectArgs) -> Result<()> {
         a.episodes
     );
     let mut evaluated = Vec::with_capacity(candidates.len());
-    for &(which, step) in &candidates {
-        let (_, mut policy) = run.policy(which)?;
+    for (which, step, dir) in &candidates {
+        let mut policy = rdpg_agents::load_policy(exp.algo, dir)
+            .with_context(|| format!("loading {}", dir.display()))?;
         let mut r = evaluate_policy(policy.as_mut(), t, a.episodes, seed)
             .with_context(|| format!("evaluating the agent {which}"))?;
-        r.step = step;
+        r.step = *step;
         eprintln!(
             "  {:>10} (step {step}): {:.1} ± {:.1}, success {:.0} %",
             which.to_string(),
@@ -143,22 +156,25 @@ pub fn run(a: &SelectArgs) -> Result<()> {
             r.std_return,
             100.0 * r.success_rate
         );
-        evaluated.push((which, r));
+        evaluated.push(r);
     }
     // The highest mean; on a tie the earliest (fewest steps).
-    let (chosen, chosen_eval) = evaluated
+    let (k, chosen_eval) = evaluated
         .iter()
+        .enumerate()
         .rev()
         .max_by(|x, y| x.1.mean_return.total_cmp(&y.1.mean_return))
         .expect("at least one candidate");
+    let (chosen, _, chosen_dir) = &candidates[k];
     let selection = Selection {
         episodes: a.episodes,
         first_seed: seed,
         metric: eval_metric(t),
         chosen_step: chosen_eval.step,
-        candidates: evaluated
+        candidates: candidates
             .iter()
-            .map(|(w, r)| Candidate {
+            .zip(&evaluated)
+            .map(|((w, ..), r)| Candidate {
                 checkpoint: w.to_string(),
                 step: r.step,
                 mean_stock_return: r.mean_return,
@@ -167,10 +183,11 @@ pub fn run(a: &SelectArgs) -> Result<()> {
             })
             .collect(),
     };
-    // Written whole, then moved into place.
-    let dst = run.checkpoint(Which::Selected);
-    let tmp = run.fresh_partial(&dst)?;
-    copy_agent(&run.agent(*chosen), &tmp.join("agent"))?;
+    copy_agent(chosen_dir, &tmp.join("agent"))?;
+    if tmp.join("best").exists() {
+        std::fs::remove_dir_all(tmp.join("best"))
+            .with_context(|| format!("removing {}", tmp.join("best").display()))?;
+    }
     write_json(&tmp.join("eval.json"), chosen_eval)?;
     write_json(&tmp.join("selection.json"), &selection)?;
     seal(&tmp)?;
@@ -189,4 +206,34 @@ pub fn run(a: &SelectArgs) -> Result<()> {
 fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<()> {
     std::fs::write(path, serde_json::to_string_pretty(v)? + "\n")
         .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Copies the run's `best` agent to `to` and returns its step (`None` when the run has no
+/// best yet). A running `rdpg train` may replace `best` during the copy; a new best always has
+/// a later step, so the step read before and after the copy tells whether the copy is whole,
+/// and it is taken again if not.
+fn snapshot_best(run: &RunDir, to: &Path) -> Result<Option<u64>> {
+    let eval = run.checkpoint(Which::Best).join("eval.json");
+    let step = |p: &Path| -> Option<u64> {
+        std::fs::read_to_string(p)
+            .ok()
+            .and_then(|t| serde_json::from_str::<EvalRecord>(&t).ok())
+            .map(|e| e.step)
+    };
+    for _ in 0..5 {
+        let Some(before) = step(&eval) else {
+            return Ok(None);
+        };
+        if to.exists() {
+            std::fs::remove_dir_all(to).with_context(|| format!("removing {}", to.display()))?;
+        }
+        let copied = copy_agent(&run.agent(Which::Best), to);
+        if copied.is_ok() && step(&eval) == Some(before) {
+            return Ok(Some(before));
+        }
+    }
+    bail!(
+        "{} kept changing while it was copied (a run is saving new best agents): try again",
+        run.checkpoint(Which::Best).display()
+    )
 }

@@ -263,6 +263,14 @@ fn save_agent(
     run.commit(&tmp, &dst)
 }
 
+/// Keeps the agent of the current step (`run.keep_agents_every`), with the evaluation at this
+/// step if there was one.
+fn keep_agent(trainer: &dyn Trainer, run: &RunDir, log: &RunLog) -> Result<()> {
+    let step = trainer.steps();
+    let eval = log.last_eval.as_ref().filter(|e| e.step == step);
+    save_agent(trainer, run, Which::Kept(step), eval)
+}
+
 /// `rdpg train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
@@ -292,7 +300,6 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let latest = run.checkpoint(Which::Latest);
         let mut trainer = rdpg_agents::load_trainer(&latest)
             .with_context(|| format!("resuming {}", dir.display()))?;
-        run.drop_agents_after(trainer.steps())?;
         // The checkpoint's own copy of the experiment: what the trainer was built from.
         let snapshot = latest.join("config.toml");
         if snapshot.exists() {
@@ -312,6 +319,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if let Some(agent) = &exp.agent {
             trainer.set_parallel_twins(agent.parallel_twins)?;
         }
+        // Only once the resume is accepted: a refused one leaves the run as it was.
+        run.drop_agents_after(trainer.steps())?;
         (run, exp, trainer, lock)
     } else {
         let path = a.config.as_ref().expect("clap requires --config");
@@ -379,11 +388,10 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if std::mem::take(&mut log.new_best) {
             save_agent(trainer.as_ref(), &run, Which::Best, log.best_eval.as_ref())?;
         }
-        if trainer.steps() >= next_keep {
-            let step = trainer.steps();
-            let eval = log.last_eval.as_ref().filter(|e| e.step == step);
-            save_agent(trainer.as_ref(), &run, Which::Kept(step), eval)?;
-            next_keep = every(exp.run.keep_agents_every, step);
+        // (The agent kept at the end waits for the final evaluation, to carry it.)
+        if trainer.steps() >= next_keep && trainer.steps() < total {
+            keep_agent(trainer.as_ref(), &run, &log)?;
+            next_keep = every(exp.run.keep_agents_every, trainer.steps());
         }
         log.write_summary(&exp, trainer.steps())?;
         if stop.load(Ordering::Relaxed) {
@@ -422,6 +430,9 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if std::mem::take(&mut log.new_best) {
             save_agent(trainer.as_ref(), &run, Which::Best, log.best_eval.as_ref())?;
         }
+    }
+    if trainer.steps() >= next_keep {
+        keep_agent(trainer.as_ref(), &run, &log)?;
     }
     log.sync()?;
     save_latest(trainer.as_mut(), &run, &exp, &log)?;

@@ -784,16 +784,32 @@ fn kept_agents_are_selected_on_validation_seeds_and_shipped() {
     );
     // A resume drops agents kept after its checkpoint (they have no record behind them) and
     // may change the cadence.
-    std::fs::create_dir_all(kept(700).join("agent")).unwrap();
-    let text = std::fs::read_to_string(run.join("config.toml"))
-        .unwrap()
-        .replace("keep_agents_every = 150", "keep_agents_every = 100");
-    std::fs::write(run.join("config.toml"), text).unwrap();
+    // (650: left by a crash after the checkpoint at 600; no later cadence saves it again.)
+    std::fs::create_dir_all(kept(650).join("agent")).unwrap();
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    // A refused resume (an edit it cannot take) leaves everything in place.
+    let refused = config.replace("batch_size = ", "batch_size = 1");
+    std::fs::write(run.join("config.toml"), &refused).unwrap();
+    fails(
+        rdpg()
+            .args(["train", "--quiet", "--steps", "800", "--resume"])
+            .arg(&run),
+        &["agent.batch_size"],
+    );
+    assert!(kept(650).exists());
+    let edited = config.replace("keep_agents_every = 150", "keep_agents_every = 100");
+    std::fs::write(run.join("config.toml"), edited).unwrap();
     ok(rdpg()
-        .args(["train", "--quiet", "--steps", "800", "--resume"])
+        .args(["train", "--quiet", "--steps", "900", "--resume"])
         .arg(&run));
+    assert!(
+        !kept(650).exists(),
+        "an agent kept after the checkpoint survived the resume"
+    );
     assert!(kept(700).join("agent/weights.safetensors").is_file());
     assert!(kept(800).join("eval.json").is_file());
+    // The agent kept at the end carries the final evaluation (900 is no multiple of 200).
+    assert_eq!(json_file(&kept(900).join("eval.json"))["step"], 900);
 }
 
 /// Unknown keys, bad values and bad overrides are rejected with the key's name.

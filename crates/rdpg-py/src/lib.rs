@@ -383,9 +383,19 @@ fn agent_dir(dir: &Path, checkpoint: &str) -> PyResult<PathBuf> {
         return Ok(zoo);
     }
     let ckpts = dir.join("checkpoints");
-    let which = match checkpoint {
-        "best" | "latest" | "selected" => ckpts.join(checkpoint),
-        step if step.parse::<u64>().is_ok() => ckpts.join("agents").join(step),
+    let (which, hint) = match checkpoint {
+        "best" => (ckpts.join("best"), " (no evaluation has finished yet)"),
+        "latest" => (ckpts.join("latest"), ""),
+        "selected" => (
+            ckpts.join("selected"),
+            " (run `rdpg select` on the run first)",
+        ),
+        step if step.parse::<u64>().is_ok() => (
+            ckpts
+                .join("agents")
+                .join(step.parse::<u64>().unwrap_or(0).to_string()),
+            " (no agent was kept at that step: see checkpoints/agents)",
+        ),
         other => {
             return Err(value_err(format!(
                 "checkpoint={other:?} is not an agent of a run: \"best\", \"latest\", \
@@ -396,7 +406,7 @@ fn agent_dir(dir: &Path, checkpoint: &str) -> PyResult<PathBuf> {
     let agent = which.join("agent");
     if !agent.exists() {
         return Err(value_err(format!(
-            "{} holds no agent {checkpoint:?} ({} does not exist)",
+            "{} holds no agent {checkpoint:?}{hint}: {} does not exist",
             dir.display(),
             agent.display()
         )));

@@ -181,6 +181,7 @@ def trained_run(tmp_path_factory) -> Path:
     subprocess.run(
         [str(_rdpg_binary()), "train", "--quiet", "--config", str(ROOT / "configs/cue-rdpg.toml"),
          "--out", str(out), "--steps", "1500", "--set", "train.eval_every=500",
+         "--set", "run.keep_agents_every=500",
          "--set", "train.eval_episodes=10", "--set", "train.test_episodes=10"],
         check=True, capture_output=True,
     )
@@ -280,26 +281,36 @@ def test_a_damaged_policy_directory_is_refused(trained_run, tmp_path):
 
 
 def test_a_policy_loads_any_agent_of_a_run(trained_run):
-    # The run's latest agent, as `rdpg eval --checkpoint latest` scores it.
-    out = subprocess.run(
-        [str(_rdpg_binary()), "eval", "--run", str(trained_run), "--checkpoint", "latest",
-         "--episodes", "4"],
-        check=True, capture_output=True, text=True,
+    # Each agent of the run acts as `rdpg eval --checkpoint` scores it, and they differ.
+    first_actions = {}
+    for checkpoint in ("latest", "500"):
+        out = subprocess.run(
+            [str(_rdpg_binary()), "eval", "--run", str(trained_run), "--checkpoint", checkpoint,
+             "--episodes", "4"],
+            check=True, capture_output=True, text=True,
+        )
+        want = json.loads(out.stdout)["returns"]
+        policy = rdpg.Policy.load(trained_run, checkpoint=checkpoint)
+        env = gym.make(f"rdpg/{policy.env_id}")
+        got = []
+        for k in range(4):
+            obs, _ = env.reset(seed=3_000_000 + k)
+            policy.reset()
+            ret, done = 0.0, False
+            if k == 0:
+                first_actions[checkpoint] = policy.act(obs)
+                policy.reset()
+            while not done:
+                obs, r, term, trunc, _ = env.step(policy.act(obs))
+                ret += r
+                done = term or trunc
+            got.append(ret)
+        assert got == want, checkpoint
+    assert not np.array_equal(first_actions["latest"], first_actions["500"])
+    assert np.array_equal(
+        rdpg.Policy.load(trained_run, checkpoint="0500").act(obs),
+        rdpg.Policy.load(trained_run, checkpoint=500).act(obs),
     )
-    want = json.loads(out.stdout)["returns"]
-    policy = rdpg.Policy.load(trained_run, checkpoint="latest")
-    env = gym.make(f"rdpg/{policy.env_id}")
-    got = []
-    for k in range(4):
-        obs, _ = env.reset(seed=3_000_000 + k)
-        policy.reset()
-        ret, done = 0.0, False
-        while not done:
-            obs, r, term, trunc, _ = env.step(policy.act(obs))
-            ret += r
-            done = term or trunc
-        got.append(ret)
-    assert got == want
     with pytest.raises(ValueError, match="not an agent of a run"):
         rdpg.Policy.load(trained_run, checkpoint="worst")
     with pytest.raises(ValueError, match="holds no agent"):
