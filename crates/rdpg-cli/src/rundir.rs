@@ -268,6 +268,36 @@ impl RunDir {
         Ok(())
     }
 
+    /// Copies the agent of checkpoint `which` (`best` or `selected`) to `to` and returns the
+    /// evaluation that chose it (`None` when there is none yet). A running `rdpg train` (or
+    /// `rdpg select`) may replace the checkpoint during the copy; the evaluation read before
+    /// and after the copy tells whether the copy is one agent, and it is taken again if not.
+    pub fn snapshot_agent(&self, which: Which, to: &Path) -> Result<Option<EvalRecord>> {
+        let eval = self.checkpoint(which).join("eval.json");
+        let read = || -> Option<EvalRecord> {
+            std::fs::read_to_string(&eval)
+                .ok()
+                .and_then(|t| serde_json::from_str(&t).ok())
+        };
+        for _ in 0..5 {
+            let Some(before) = read() else {
+                return Ok(None);
+            };
+            if to.exists() {
+                std::fs::remove_dir_all(to)
+                    .with_context(|| format!("removing {}", to.display()))?;
+            }
+            let copied = copy_agent(&self.agent(which), to);
+            if copied.is_ok() && read().as_ref() == Some(&before) {
+                return Ok(Some(before));
+            }
+        }
+        anyhow::bail!(
+            "{} kept changing while it was copied (a run is saving new agents): try again",
+            self.checkpoint(which).display()
+        )
+    }
+
     /// The agent of a checkpoint: `checkpoints/<which>/agent` (a zoo entry's `agent/`).
     pub fn agent(&self, which: Which) -> PathBuf {
         if self.is_zoo_entry() {

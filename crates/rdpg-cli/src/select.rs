@@ -20,7 +20,6 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use rdpg_agents::common::checkpoint::seal;
 use rdpg_agents::common::evaluate_policy;
-use rdpg_agents::EvalRecord;
 use serde::{Deserialize, Serialize};
 
 use crate::rundir::{copy_agent, eval_metric, RunDir, Which};
@@ -119,7 +118,10 @@ pub fn run(a: &SelectArgs) -> Result<()> {
         .filter(|&s| s >= a.from)
         .map(|s| (Which::Kept(s), s, run.agent(Which::Kept(s))))
         .collect();
-    if let Some(step) = snapshot_best(&run, &tmp.join("best"))? {
+    if let Some(step) = run
+        .snapshot_agent(Which::Best, &tmp.join("best"))?
+        .map(|e| e.step)
+    {
         if candidates.iter().any(|c| c.1 == step) {
             std::fs::remove_dir_all(tmp.join("best"))
                 .with_context(|| format!("removing {}", tmp.join("best").display()))?;
@@ -206,34 +208,4 @@ pub fn run(a: &SelectArgs) -> Result<()> {
 fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<()> {
     std::fs::write(path, serde_json::to_string_pretty(v)? + "\n")
         .with_context(|| format!("writing {}", path.display()))
-}
-
-/// Copies the run's `best` agent to `to` and returns its step (`None` when the run has no
-/// best yet). A running `rdpg train` may replace `best` during the copy; a new best always has
-/// a later step, so the step read before and after the copy tells whether the copy is whole,
-/// and it is taken again if not.
-fn snapshot_best(run: &RunDir, to: &Path) -> Result<Option<u64>> {
-    let eval = run.checkpoint(Which::Best).join("eval.json");
-    let step = |p: &Path| -> Option<u64> {
-        std::fs::read_to_string(p)
-            .ok()
-            .and_then(|t| serde_json::from_str::<EvalRecord>(&t).ok())
-            .map(|e| e.step)
-    };
-    for _ in 0..5 {
-        let Some(before) = step(&eval) else {
-            return Ok(None);
-        };
-        if to.exists() {
-            std::fs::remove_dir_all(to).with_context(|| format!("removing {}", to.display()))?;
-        }
-        let copied = copy_agent(&run.agent(Which::Best), to);
-        if copied.is_ok() && step(&eval) == Some(before) {
-            return Ok(Some(before));
-        }
-    }
-    bail!(
-        "{} kept changing while it was copied (a run is saving new best agents): try again",
-        run.checkpoint(Which::Best).display()
-    )
 }

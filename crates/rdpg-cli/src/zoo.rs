@@ -19,13 +19,12 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use rdpg_agents::common::evaluate_policy;
-use rdpg_agents::EvalRecord;
 use serde::{Deserialize, Serialize};
 
 use crate::render::{render_run, RenderTarget};
 use crate::rundir::{
-    copy_agent, copy_file, machine_description, read_json, EvalSummary, Metric, RunDir, Summary,
-    TestSummary, Which,
+    copy_file, machine_description, read_json, EvalSummary, Metric, RunDir, Summary, TestSummary,
+    Which,
 };
 
 /// Arguments of `rdpg zoo`.
@@ -174,12 +173,14 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     // Copy first, then test the copy: what ships is what was tested, even if the run is
     // still training and commits a new best meanwhile.
     let agent_dir = run.agent(a.checkpoint);
-    if !agent_dir.exists() {
+    let Some(chosen) = run.snapshot_agent(a.checkpoint, &tmp.join("agent"))? else {
         // The message of a missing agent, with its hint.
         run.policy(a.checkpoint)?;
-    }
-    copy_agent(&agent_dir, &tmp.join("agent"))?;
-    let chosen: EvalRecord = read_json(&run.checkpoint(a.checkpoint).join("eval.json"))?;
+        bail!(
+            "{} has no eval.json: not an agent chosen on the validation seeds",
+            run.checkpoint(a.checkpoint).display()
+        );
+    };
     copy_file(&run.config(), &tmp.join("config.toml"))?;
     copy_file(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
     let agent_meta: serde_json::Value = read_json(&tmp.join("agent").join("agent.json"))?;
