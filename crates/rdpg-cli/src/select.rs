@@ -7,7 +7,7 @@
 //! N validation episodes (default 50, from the run's validation seeds `train.eval_seed`), and
 //! writes the winner to `checkpoints/selected/`:
 //! - `agent/`: a copy of the chosen agent (sealed);
-//! - `eval.json`: its selection evaluation (an [`EvalRecord`], N episodes);
+//! - `eval.json`: its selection evaluation (an [`rdpg_agents::EvalRecord`], N episodes);
 //! - `selection.json` ([`Selection`]): every candidate's evaluation, the seeds and the choice.
 //!
 //! The test seeds stay unseen: a `--seed` whose episodes would overlap them is refused.
