@@ -550,6 +550,12 @@ pub struct UpdateMeans {
     /// Mean wall-clock milliseconds per update (speed; differs between identical runs).
     #[serde(default)]
     pub update_ms: Option<f64>,
+    /// Mean FORK dynamics-model loss (runs with `agent.fork`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model_loss: Option<f64>,
+    /// Share of the actor updates whose loss had FORK's forward-looking term.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fork_share: Option<f64>,
 }
 
 /// Sums of update statistics, turned into [`UpdateMeans`] at each metric row. The sums
@@ -564,6 +570,14 @@ pub struct UpdateSums {
     injected: f64,
     #[serde(default)]
     seconds: f64,
+    #[serde(default)]
+    n_model: u64,
+    #[serde(default)]
+    model: f64,
+    #[serde(default)]
+    n_fork_turn: u64,
+    #[serde(default)]
+    fork_used: u64,
 }
 
 impl UpdateSums {
@@ -578,6 +592,14 @@ impl UpdateSums {
             self.n_actor += 1;
             self.actor += a;
         }
+        if let Some(m) = s.model_loss {
+            self.n_model += 1;
+            self.model += m;
+        }
+        if let Some(used) = s.fork_term {
+            self.n_fork_turn += 1;
+            self.fork_used += u64::from(used);
+        }
     }
 
     /// The means so far, and a fresh start.
@@ -591,6 +613,8 @@ impl UpdateSums {
             q_mean: mean(s.q, s.n),
             injected_share: mean(s.injected, s.n),
             update_ms: mean(1000.0 * s.seconds, s.n),
+            model_loss: mean(s.model, s.n_model),
+            fork_share: mean(s.fork_used as f64, s.n_fork_turn),
         }
     }
 }
@@ -981,6 +1005,8 @@ impl RunLog {
                 v.extend(u.q_mean.map(|x| ("learner/q_mean", x)));
                 v.extend(u.injected_share.map(|x| ("learner/injected_share", x)));
                 v.extend(u.update_ms.map(|x| ("learner/update_ms", x)));
+                v.extend(u.model_loss.map(|x| ("learner/model_loss", x)));
+                v.extend(u.fork_share.map(|x| ("learner/fork_share", x)));
                 v
             }
             Metric::Eval {

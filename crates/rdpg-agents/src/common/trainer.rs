@@ -16,7 +16,8 @@ pub struct UpdateStats {
     /// Critic loss (RDPG: weighted squared TD error, summed over twin critics; PPO: the value
     /// loss).
     pub critic_loss: f64,
-    /// Actor loss (RDPG: `-Q(o, mu(o))` averaged over real steps; PPO: the KL-penalised
+    /// Actor loss (RDPG: `-Q(o, mu(o))` averaged over real steps, plus FORK's weighted term
+    /// when it was used; PPO: the KL-penalised
     /// surrogate, negated); `None` when this update did not train the actor (TD3's
     /// `policy_delay`).
     pub actor_loss: Option<f64>,
@@ -29,6 +30,13 @@ pub struct UpdateStats {
     /// Wall-clock seconds the update took (speed monitoring; the only field that differs
     /// between identical runs).
     pub seconds: f64,
+    /// FORK's dynamics-model loss on the batch, before its step; `None` without FORK.
+    #[serde(default)]
+    pub model_loss: Option<f64>,
+    /// On an update that trained the actor with FORK: whether the forward-looking term was
+    /// in its loss (the dynamics loss was below the threshold); `None` otherwise.
+    #[serde(default)]
+    pub fork_term: Option<bool>,
 }
 
 /// A finished training episode.

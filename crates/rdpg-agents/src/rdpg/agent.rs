@@ -151,6 +151,8 @@ pub struct RdpgAgent {
     /// How many of `critic_opt`'s parameters are critic 0's (they come first): where
     /// `parallel_twins` splits the critics' Adam step between the two threads.
     pub(super) critic0_params: usize,
+    /// FORK's models (`config.fork`).
+    pub(super) fork: Option<super::fork::ForkModels>,
 }
 
 impl std::fmt::Debug for RdpgAgent {
@@ -276,6 +278,9 @@ impl RdpgAgent {
         let critic0_params = sorted_vars(&critic_vs[0]).len();
         let critic_params: Vec<_> = critic_vs.iter().flat_map(sorted_vars).collect();
         let critic_opt = Adam::new(adam(cfg.lr_critic, cfg.critic_l2), critic_params);
+        let fork = cfg.fork.as_ref().map(|f| {
+            super::fork::ForkModels::new(f, d, a, kind, device, adam(f.lr, 0.0), &mut rng)
+        });
 
         Ok(Self {
             rng,
@@ -297,6 +302,7 @@ impl RdpgAgent {
             exploring: None,
             side: None,
             critic0_params,
+            fork,
         })
     }
 
@@ -538,7 +544,8 @@ impl RdpgAgent {
         Ok(())
     }
 
-    /// All network weights (targets included, prefixed `target.`) flattened to f64, by name;
+    /// All network weights (targets included, prefixed `target.`; FORK's models last)
+    /// flattened to f64, by name;
     /// for tests and diagnostics.
     pub fn weights(&self) -> Vec<(String, Vec<f64>)> {
         let mut out = Vec::new();
@@ -556,6 +563,10 @@ impl RdpgAgent {
             for vs in &t.critic_vs {
                 add(vs, "target.");
             }
+        }
+        if let Some(f) = &self.fork {
+            add(&f.dynamics_vs, "");
+            add(&f.reward_vs, "");
         }
         out
     }

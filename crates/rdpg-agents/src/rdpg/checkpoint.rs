@@ -1,6 +1,6 @@
 //! Checkpoints of an [`RdpgAgent`]: `agent.json` (format, config, sizes, seed, update count,
 //! the agent's generator), `weights.safetensors` (networks, target networks prefixed
-//! `target.`) and `optim.safetensors` (Adam moments). Loading continues bit-identically.
+//! `target.`; FORK's models) and `optim.safetensors` (Adam moments). Loading continues bit-identically.
 
 use std::path::Path;
 
@@ -28,6 +28,9 @@ struct CheckpointMeta {
     double: bool,
     updates: u64,
     rng: NpRng,
+    /// FORK's observation bounds (agents with `config.fork`).
+    #[serde(default)]
+    fork_bounds: Option<(f64, f64)>,
 }
 
 const CHECKPOINT_FORMAT: u32 = 1;
@@ -52,9 +55,16 @@ impl RdpgAgent {
                 );
             }
         }
+        if let Some(f) = &self.fork {
+            weights.extend(f.vars());
+        }
         write_tensors(&dir.join("weights.safetensors"), &weights)?;
         let mut optim = self.actor_opt.state("actor_opt.");
         optim.extend(self.critic_opt.state("critic_opt."));
+        if let Some(f) = &self.fork {
+            optim.extend(f.dynamics_opt.state("fork_dynamics_opt."));
+            optim.extend(f.reward_opt.state("fork_reward_opt."));
+        }
         write_tensors(&dir.join("optim.safetensors"), &optim)?;
         let meta = CheckpointMeta {
             format: CHECKPOINT_FORMAT,
@@ -65,6 +75,7 @@ impl RdpgAgent {
             double: self.kind == Kind::Double,
             updates: self.updates,
             rng: self.rng.clone(),
+            fork_bounds: self.fork.as_ref().map(|f| f.bounds),
         };
         write_json(&dir.join("agent.json"), &meta)?;
         crate::common::checkpoint::seal(dir)
@@ -121,10 +132,21 @@ impl RdpgAgent {
                 restore_vars(vs, &weights, "target.")?;
             }
         }
+        if let Some(f) = &mut agent.fork {
+            restore_vars(&f.dynamics_vs, &weights, "")?;
+            restore_vars(&f.reward_vs, &weights, "")?;
+            f.bounds = meta
+                .fork_bounds
+                .ok_or_else(|| ckpt_err(&meta_path, "a FORK agent without its fork_bounds"))?;
+        }
         if with_optim {
             let optim = read_tensors(&dir.join("optim.safetensors"))?;
             agent.actor_opt.load_state("actor_opt.", &optim)?;
             agent.critic_opt.load_state("critic_opt.", &optim)?;
+            if let Some(f) = &mut agent.fork {
+                f.dynamics_opt.load_state("fork_dynamics_opt.", &optim)?;
+                f.reward_opt.load_state("fork_reward_opt.", &optim)?;
+            }
         }
         agent.updates = meta.updates;
         agent.rng = meta.rng;

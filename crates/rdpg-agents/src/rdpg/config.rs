@@ -68,6 +68,39 @@ pub struct TargetNoise {
     pub clip: f64,
 }
 
+/// FORK's forward-looking actor (Wei & Ying, "FORK: A Forward-Looking Actor for Model-Free
+/// Reinforcement Learning", 2021; TD3-FORK): a dynamics model `F(o, a) -> o'` and a reward
+/// model `R(o, o', a) -> r`, both MLPs trained on every update's batch, and on the actor's
+/// turn, while the dynamics model's loss is below `threshold`, an extra actor loss term that
+/// looks two model steps ahead (see `fork.rs`). Feed-forward agents only.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ForkConfig {
+    /// Weight `w` of the forward-looking term in the actor loss. TD3-FORK: 0.5.
+    pub weight: f64,
+    /// The term is used on an update only when that update's dynamics-model loss (smooth L1,
+    /// before the model's step) is below this. TD3-FORK: 0.02.
+    pub threshold: f64,
+    /// Hidden widths of the dynamics model (ReLU). TD3-FORK: 400, 300.
+    pub model_hidden: Vec<usize>,
+    /// Hidden widths of the reward model (ReLU). TD3-FORK: 256, 256.
+    pub reward_hidden: Vec<usize>,
+    /// Adam learning rate of both models. TD3-FORK: 3e-4.
+    pub lr: f64,
+}
+
+impl Default for ForkConfig {
+    fn default() -> Self {
+        Self {
+            weight: 0.5,
+            threshold: 0.02,
+            model_hidden: vec![400, 300],
+            reward_hidden: vec![256, 256],
+            lr: 3e-4,
+        }
+    }
+}
+
 /// All hyper-parameters of [`RdpgAgent`](super::RdpgAgent). Every field has a default (see
 /// [`RdpgConfig::default`]); a JSON config may give any subset, unknown fields are rejected.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -186,6 +219,9 @@ pub struct RdpgConfig {
     /// down 2-3x as training drives values into the subnormal range; the numerical effect is
     /// below `f32` precision of any value that matters.
     pub flush_denormal: bool,
+    /// FORK's forward-looking actor (dynamics and reward models and a two-step look-ahead
+    /// term in the actor loss); none when `None`. Needs a feed-forward agent.
+    pub fork: Option<ForkConfig>,
 }
 
 impl Default for RdpgConfig {
@@ -228,6 +264,7 @@ impl Default for RdpgConfig {
             num_threads: None,
             parallel_twins: false,
             flush_denormal: true,
+            fork: None,
         }
     }
 }
@@ -373,6 +410,28 @@ impl RdpgConfig {
         if self.num_threads == Some(0) {
             return Err(bad("num_threads", "must be at least 1 when given"));
         }
+        if let Some(f) = &self.fork {
+            if self.recurrent {
+                return Err(bad(
+                    "fork",
+                    "needs a feed-forward agent (recurrent = false): its models map one \
+                     observation and action to the next",
+                ));
+            }
+            if !(f.weight.is_finite() && f.weight >= 0.0) {
+                return Err(bad("fork", "weight must be finite and >= 0"));
+            }
+            if !(f.threshold.is_finite() && f.threshold > 0.0) {
+                return Err(bad("fork", "threshold must be finite and > 0"));
+            }
+            if f.model_hidden.is_empty() || f.model_hidden.contains(&0) {
+                return Err(bad("fork", "model_hidden must list widths >= 1"));
+            }
+            if f.reward_hidden.is_empty() || f.reward_hidden.contains(&0) {
+                return Err(bad("fork", "reward_hidden must list widths >= 1"));
+            }
+            finite_pos("fork", f.lr)?;
+        }
         Ok(())
     }
 
@@ -496,6 +555,45 @@ mod tests {
         ] {
             let e = bad.validate().unwrap_err().to_string();
             assert!(e.contains("parallel_twins"), "{e}");
+        }
+    }
+
+    #[test]
+    fn fork_needs_a_feed_forward_agent_and_sane_models() {
+        let ff = RdpgConfig {
+            fork: Some(ForkConfig::default()),
+            ..RdpgConfig::default().ddpg()
+        };
+        ff.validate().unwrap();
+        // From TOML-like JSON: a partial table takes the defaults for the rest.
+        let c: RdpgConfig =
+            serde_json::from_str(r#"{"recurrent": false, "fork": {"weight": 0.3}}"#).unwrap();
+        let f = c.fork.as_ref().unwrap();
+        assert_eq!((f.weight, f.threshold, f.lr), (0.3, 0.02, 3e-4));
+        assert!(serde_json::from_str::<RdpgConfig>(r#"{"fork": {"wieght": 1}}"#).is_err());
+        let recurrent = RdpgConfig {
+            fork: Some(ForkConfig::default()),
+            ..RdpgConfig::default()
+        };
+        for (bad, why) in [
+            (recurrent, "feed-forward"),
+            (ff_with(|f| f.weight = -1.0), "weight"),
+            (ff_with(|f| f.threshold = 0.0), "threshold"),
+            (ff_with(|f| f.model_hidden.clear()), "model_hidden"),
+            (ff_with(|f| f.reward_hidden = vec![4, 0]), "reward_hidden"),
+            (ff_with(|f| f.lr = f64::NAN), "fork"),
+        ] {
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.contains("fork") && e.contains(why), "{e}");
+        }
+    }
+
+    fn ff_with(change: impl FnOnce(&mut ForkConfig)) -> RdpgConfig {
+        let mut f = ForkConfig::default();
+        change(&mut f);
+        RdpgConfig {
+            fork: Some(f),
+            ..RdpgConfig::default().ddpg()
         }
     }
 }

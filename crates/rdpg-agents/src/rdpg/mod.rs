@@ -6,7 +6,8 @@
 //! * [`lstm`]: the recurrent core and the no-gradient scan it drives; [`nets`]: trunks, actor
 //!   and critic.
 //! * [`agent`]: [`RdpgAgent`], acting with the trained actor or its exploring copy.
-//! * [`update`]: Algorithm 1's `Update()`, top to bottom; [`checkpoint`]: save and load.
+//! * [`update`]: Algorithm 1's `Update()`, top to bottom; [`fork`]: FORK's models and
+//!   forward-looking actor term (feed-forward agents); [`checkpoint`]: save and load.
 //! * [`trainer`]: [`OffPolicyTrainer`], Algorithm 1's outer loop; [`inject`]: experience
 //!   injection from teacher files.
 //! * [`bench`](mod@bench): synthetic batches and the update benchmark.
@@ -15,6 +16,7 @@ pub mod agent;
 pub mod bench;
 pub mod checkpoint;
 pub mod config;
+pub mod fork;
 pub mod inject;
 pub mod lstm;
 pub mod nets;
@@ -23,7 +25,9 @@ pub mod trainer;
 pub mod update;
 
 pub use agent::{ActorState, RdpgAgent};
-pub use config::{memory_task_config, CriticTarget, RdpgConfig, ScanMethod, TargetNoise, Trunk};
+pub use config::{
+    memory_task_config, CriticTarget, ForkConfig, RdpgConfig, ScanMethod, TargetNoise, Trunk,
+};
 pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
 pub use trainer::{OffPolicyTrainer, RdpgPolicy};
 pub use update::PhaseTimes;

@@ -8,7 +8,7 @@ use tch::{Device, Kind, Tensor};
 
 use super::agent::RdpgAgent;
 use super::bench::synthetic_batch;
-use super::config::{RdpgConfig, ScanMethod, Trunk};
+use super::config::{ForkConfig, RdpgConfig, ScanMethod, Trunk};
 use super::lstm::RecState;
 use super::update::{actor_loss, critic_loss_from, scan_critic, td_targets, ActorInput};
 use crate::common::tensor::{sorted_vars, tensor_to_vec64 as to_vec64, DeviceSpec};
@@ -594,11 +594,34 @@ fn full_cfg() -> RdpgConfig {
     }
 }
 
+/// A feed-forward TD3 with FORK (windows of 3 steps, so that padding is exercised); the
+/// threshold keeps the forward-looking term on from the first update.
+fn fork_cfg() -> RdpgConfig {
+    RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![8] },
+        recurrent: false,
+        critic_action_fc: 0,
+        actor_hidden: 8,
+        critic_hidden: 8,
+        scan_len: 0,
+        policy_delay: 2,
+        fork: Some(ForkConfig {
+            weight: 0.5,
+            threshold: 1e3,
+            model_hidden: vec![6, 5],
+            reward_hidden: vec![4, 3],
+            lr: 1e-3,
+        }),
+        ..full_cfg()
+    }
+}
+
 #[test]
 fn same_seed_same_weights_after_updates() {
     for cfg in [
         tiny(),
         full_cfg(),
+        fork_cfg(),
         RdpgConfig {
             actor_uses_updated_critic: false,
             actor_bptt: true,
@@ -694,7 +717,11 @@ fn tmp_dir(tag: &str) -> std::path::PathBuf {
 
 #[test]
 fn save_load_gives_identical_outputs_and_next_update() {
-    for (tag, cfg) in [("plain", tiny()), ("full", full_cfg())] {
+    for (tag, cfg) in [
+        ("plain", tiny()),
+        ("full", full_cfg()),
+        ("fork", fork_cfg()),
+    ] {
         let mut a = RdpgAgent::new(cfg.clone(), OBS, ACT, 7).unwrap();
         for k in 0..3 {
             a.update(&batch(&cfg, 6, 0.3, k));
@@ -1535,4 +1562,146 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
             assert_eq!(v1, v2, "{n1} differs (recurrent: {})", cfg.recurrent);
         }
     }
+}
+
+/// The actor's gradient of FORK's term as computed (predicted observations held constant, the
+/// models and the critic frozen) equals the gradient of the term written as TD3-FORK's code
+/// writes it (`detach` exactly where its authors put it, models trainable), and reaches no
+/// model or critic parameter.
+#[test]
+fn fork_term_equals_the_reference_formulation() {
+    let cfg = fork_cfg();
+    let gamma = cfg.gamma;
+    let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 31, Kind::Double).unwrap();
+    let b = batch(&cfg, 5, 0.5, 12);
+    let p = agent.prepare(&b);
+    let mut f = agent.fork.take().unwrap();
+    for _ in 0..3 {
+        f.train(&p); // bounds set, models away from their initialisation
+    }
+    assert!(f.bounds.0 < 0.0 && f.bounds.1 > 0.0, "{:?}", f.bounds);
+    let actor_grads = |agent: &RdpgAgent| -> Vec<Vec<f64>> {
+        sorted_vars(&agent.actor_vs)
+            .iter()
+            .map(|(_, v)| to_vec64(&v.grad()))
+            .collect()
+    };
+
+    agent.actor_opt.zero_grad();
+    f.dynamics_opt.zero_grad();
+    f.reward_opt.zero_grad();
+    agent.critic_opt.zero_grad();
+    agent.critic_vs[0].freeze();
+    let ours = f.actor_term(&agent.actor, &agent.critics[0], &p, gamma);
+    ours.backward();
+    agent.critic_vs[0].unfreeze();
+    let g_ours = actor_grads(&agent);
+    for (name, v) in f.vars().iter().chain(&sorted_vars(&agent.critic_vs[0])) {
+        let g = v.grad();
+        assert!(
+            !g.defined() || to_vec64(&g).iter().all(|&x| x == 0.0),
+            "{name} received a gradient from the actor's term"
+        );
+    }
+
+    // TD3-FORK's formulation, literally.
+    agent.actor_opt.zero_grad();
+    let (n, l) = (p.n, p.l);
+    let d = OBS as i64;
+    let state = p.obs_win.narrow(1, 0, l).reshape([n * l, d]);
+    let zero = agent
+        .actor
+        .core
+        .zero_state(n * l, Kind::Double, Device::Cpu);
+    let actor = |o: &Tensor| agent.actor.step(o, &zero).0;
+    let p_next_state = f.predict(&state, &actor(&state));
+    let p_next_r = f.reward(&state, &p_next_state.detach(), &actor(&state));
+    let p_next_state2 = f.predict(&p_next_state, &actor(&p_next_state.detach()));
+    let p_next_r2 = f.reward(
+        &p_next_state.detach(),
+        &p_next_state2.detach(),
+        &actor(&p_next_state.detach()),
+    );
+    let actions3 = actor(&p_next_state2.detach());
+    let zc = agent.critics[0]
+        .core
+        .zero_state(n * l, Kind::Double, Device::Cpu);
+    let (q, _) = agent.critics[0].step(&p_next_state2.detach(), &actions3, &zc);
+    let v = p_next_r + p_next_r2 * gamma + q * (gamma * gamma);
+    let reference = -(v.reshape([n, l]) * &p.actor_w).sum(Kind::Double) / n as f64;
+    reference.backward();
+    let g_ref = actor_grads(&agent);
+
+    assert_close(
+        &[ours.double_value(&[])],
+        &[reference.double_value(&[])],
+        1e-12,
+        "J_fork",
+    );
+    for (k, (a, r)) in g_ours.iter().zip(&g_ref).enumerate() {
+        assert!(
+            a.iter().any(|&x| x != 0.0),
+            "actor variable {k}: no gradient"
+        );
+        assert_close(a, r, 1e-10, &format!("actor variable {k}"));
+    }
+}
+
+/// FORK's models fit a fixed batch: the dynamics loss falls below TD3-FORK's threshold
+/// (switching the term on), the reward loss falls, padding is ignored, the bounds are the
+/// batch's extreme observation values; an update reports the loss, and whether the term was
+/// used only on the actor's turn.
+#[test]
+fn fork_models_fit_a_batch_and_switch_the_term_on() {
+    let cfg = RdpgConfig {
+        fork: Some(ForkConfig {
+            threshold: 0.02,
+            model_hidden: vec![64, 64],
+            reward_hidden: vec![32, 32],
+            lr: 3e-3,
+            ..ForkConfig::default()
+        }),
+        ..fork_cfg()
+    };
+    let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 5).unwrap();
+    let mut b = batch(&cfg, 8, 0.5, 4);
+    poison_padding(&mut b);
+    let p = agent.prepare(&b);
+    let f = agent.fork.as_mut().unwrap();
+    let first = f.train(&p);
+    assert!(!first.use_term, "loss {} at init", first.dynamics_loss);
+    // The bounds: extreme values over the real steps' observations and their successors.
+    let (mut lo, mut hi) = (0.0f64, 0.0f64);
+    let t = b.scan + b.opt;
+    for i in 0..b.n {
+        for j in 0..=b.opt_len[i] {
+            for k in 0..OBS {
+                let x = f64::from(b.obs[(i * (t + 1) + b.scan + j) * OBS + k]);
+                lo = lo.min(x);
+                hi = hi.max(x);
+            }
+        }
+    }
+    assert_eq!(f.bounds, (lo, hi));
+    let reward_loss = |f: &super::fork::ForkModels| {
+        let (n, l) = (p.n, p.l);
+        let obs = p.obs_win.narrow(1, 0, l).reshape([n * l, OBS as i64]);
+        let next = p.obs_win.narrow(1, 1, l).reshape([n * l, OBS as i64]);
+        let act = p.act_win.reshape([n * l, ACT as i64]);
+        let e = (f.reward(&obs, &next, &act) - p.rew.reshape([n * l])) * p.mask.reshape([n * l]);
+        tch::no_grad(|| (&e * &e).sum(Kind::Float).double_value(&[]))
+    };
+    let r0 = reward_loss(f);
+    let steps = (0..3000).position(|_| f.train(&p).use_term);
+    assert!(steps.is_some(), "the dynamics loss never fell below 0.02");
+    assert!(reward_loss(f) < 0.1 * r0, "{} vs {r0}", reward_loss(f));
+
+    let s1 = agent.update(&b);
+    let s2 = agent.update(&b);
+    assert!(s1.model_loss.is_some_and(|x| x < 0.02), "{s1:?}");
+    assert_eq!((s1.fork_term, s2.fork_term), (None, Some(true)));
+    let plain = RdpgAgent::new(tiny(), OBS, ACT, 5)
+        .unwrap()
+        .update(&batch(&tiny(), 4, 0.5, 1));
+    assert_eq!((plain.model_loss, plain.fork_term), (None, None));
 }

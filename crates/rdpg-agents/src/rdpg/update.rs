@@ -29,6 +29,10 @@
 //!    actions (after the critic's Adam step by default, as Algorithm 1 orders it).
 //! 4. **Targets**: `theta' <- theta' + tau (theta - theta')` when `tau > 0`.
 //!
+//! With `fork` (feed-forward agents) FORK's dynamics and reward models take one step each
+//! after the critic's, and on the actor's turn the actor loss of step 3 gains FORK's
+//! forward-looking term while the dynamics model is accurate enough (`fork.rs`).
+//!
 //! `critic_target = "per_step_td0"` replaces step 2's targets with the classic RDPG's (Heess
 //! et al. 2015, the paper's Table I baseline): per-step TD(0),
 //! `y_i = r_i + gamma Q'(o_{i+1}, mu'(o_{i+1}) | h'_i) (1 - term_i)`, each step bootstrapping
@@ -71,6 +75,9 @@ pub struct PhaseTimes {
     pub window_nograd: f64,
     /// Critic forward with gradient, backward, clipping and Adam step.
     pub critic_step: f64,
+    /// FORK's model steps (0 without FORK).
+    #[serde(default)]
+    pub models: f64,
     /// The critic rescan and state run after its step (`actor_uses_updated_critic`).
     pub critic_rescan: f64,
     /// Actor forward, backward and Adam step.
@@ -87,6 +94,7 @@ impl PhaseTimes {
         self.scan += o.scan;
         self.window_nograd += o.window_nograd;
         self.critic_step += o.critic_step;
+        self.models += o.models;
         self.critic_rescan += o.critic_rescan;
         self.actor_step += o.actor_step;
         self.other += o.other;
@@ -192,6 +200,10 @@ impl RdpgAgent {
         }
         clock.lap(|t| &mut t.critic_step);
 
+        // ---- FORK's models: one step each on this batch (`fork.rs`). -------------------------
+        let model_step = self.fork.as_mut().map(|f| f.train(&p));
+        clock.lap(|t| &mut t.models);
+
         // ---- 3. Actor: deterministic policy gradient (Eq. (DPG)), no BPTT by default. ------
         let mut actor_loss_value = None;
         if actor_turn {
@@ -210,7 +222,15 @@ impl RdpgAgent {
             // Critic 0 is a constant here: no gradients are computed or accumulated for it
             // (the only critic the actor loss reads).
             self.critic_vs[0].freeze();
-            let loss = actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
+            let mut loss = actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
+            // FORK: + w J_fork while the dynamics model is accurate enough.
+            if let (Some(f), Some(m)) = (&mut self.fork, &model_step) {
+                if m.use_term {
+                    let w = f.cfg.weight;
+                    let j = f.actor_term(&self.actor, &self.critics[0], &p, self.cfg.gamma);
+                    loss += j * w;
+                }
+            }
             self.actor_opt.zero_grad();
             loss.backward();
             self.critic_vs[0].unfreeze();
@@ -242,6 +262,8 @@ impl RdpgAgent {
             injected_share: batch.injected.iter().map(|&x| f64::from(x)).sum::<f64>()
                 / batch.n as f64,
             seconds: started.elapsed().as_secs_f64(),
+            model_loss: model_step.as_ref().map(|m| m.dynamics_loss),
+            fork_term: model_step.filter(|_| actor_turn).map(|m| m.use_term),
         };
         clock.lap(|t| &mut t.other);
         if let Some(pt) = &mut self.profile {
