@@ -1103,6 +1103,12 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
     serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
 }
 
+/// Writes `v` as pretty JSON with a final newline (eval.json, selection.json, zoo summaries).
+pub fn write_json<T: serde::Serialize>(path: &Path, v: &T) -> Result<()> {
+    std::fs::write(path, serde_json::to_string_pretty(v)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))
+}
+
 /// What a deterministic evaluation's mean is, for JSON output: the stock reward, with the
 /// run's action repeat when it has one.
 pub fn eval_metric(t: &rdpg_agents::TrainConfig) -> String {

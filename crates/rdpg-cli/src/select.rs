@@ -14,7 +14,7 @@
 //! `rdpg eval --checkpoint selected` tests the choice and `rdpg zoo --checkpoint selected`
 //! ships it.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -22,7 +22,7 @@ use rdpg_agents::common::checkpoint::seal;
 use rdpg_agents::common::evaluate_policy;
 use serde::{Deserialize, Serialize};
 
-use crate::rundir::{copy_agent, eval_metric, RunDir, Which};
+use crate::rundir::{copy_agent, eval_metric, write_json, RunDir, Which};
 
 /// Arguments of `rdpg select`.
 #[derive(Debug, Args)]
@@ -203,9 +203,4 @@ pub fn run(a: &SelectArgs) -> Result<()> {
     );
     println!("{}", serde_json::to_string(&selection)?);
     Ok(())
-}
-
-fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<()> {
-    std::fs::write(path, serde_json::to_string_pretty(v)? + "\n")
-        .with_context(|| format!("writing {}", path.display()))
 }

@@ -15,7 +15,9 @@ use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats
 use serde::Serialize;
 
 use crate::experiment::Experiment;
-use crate::rundir::{copy_agent, eval_metric, Metric, RunDir, RunLog, TestSummary, Which};
+use crate::rundir::{
+    copy_agent, eval_metric, write_json, Metric, RunDir, RunLog, TestSummary, Which,
+};
 
 /// Arguments of `rdpg train`.
 #[derive(Debug, Args)]
@@ -254,9 +256,7 @@ fn save_agent(
         trainer.save_agent(&tmp.join("agent"))?;
     }
     if let Some(e) = eval {
-        let p = tmp.join("eval.json");
-        std::fs::write(&p, serde_json::to_string_pretty(e)?)
-            .with_context(|| format!("writing {}", p.display()))?;
+        write_json(&tmp.join("eval.json"), e)?;
     }
     // Sealed again with the files added here.
     seal(&tmp)?;

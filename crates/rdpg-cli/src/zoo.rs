@@ -23,8 +23,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::render::{render_run, RenderTarget};
 use crate::rundir::{
-    copy_file, machine_description, read_json, EvalSummary, Metric, RunDir, Summary, TestSummary,
-    Which,
+    copy_file, machine_description, read_json, write_json, EvalSummary, Metric, RunDir, Summary,
+    TestSummary, Which,
 };
 
 /// Arguments of `rdpg zoo`.
@@ -279,9 +279,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         }),
         files,
     };
-    let text = serde_json::to_string_pretty(&zs)?;
-    std::fs::write(tmp.join("summary.json"), text + "\n")
-        .with_context(|| format!("writing {}", tmp.join("summary.json").display()))?;
+    write_json(&tmp.join("summary.json"), &zs)?;
     std::fs::rename(&tmp, &a.out)
         .with_context(|| format!("renaming {} to {}", tmp.display(), a.out.display()))?;
     println!("{}", serde_json::to_string(&zs)?);

@@ -29,7 +29,7 @@ struct CheckpointMeta {
     updates: u64,
     rng: NpRng,
     /// FORK's observation bounds (agents with `config.fork`).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     fork_bounds: Option<(f64, f64)>,
 }
 

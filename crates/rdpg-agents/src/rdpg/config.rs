@@ -221,6 +221,7 @@ pub struct RdpgConfig {
     pub flush_denormal: bool,
     /// FORK's forward-looking actor (dynamics and reward models and a two-step look-ahead
     /// term in the actor loss); none when `None`. Needs a feed-forward agent.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub fork: Option<ForkConfig>,
 }
 

@@ -11,6 +11,11 @@
 //! 2. **Reward** `R(o, o', a) -> r`: an MLP on `o ++ o' ++ a` (`reward_hidden`, ReLU). Loss:
 //!    `(R(o_i, o_{i+1}, a_i) - r_i)^2` averaged over real rows (the training reward).
 //!
+//! Both are initialised like the agent's networks (PyTorch's default bounds, the output layer
+//! within ±3e-3; TD3-FORK starts its dynamics model with Xavier weights). The bounds come from
+//! the sampled batches (injected teacher windows included), so early in a run they can be
+//! narrower than TD3-FORK's, which sees every observation while acting.
+//!
 //! Each takes one Adam step per update. On the actor's turn, when this update's dynamics
 //! loss (before the model's step) is below `threshold`, the actor loss gains `w * J_fork`,
 //!

@@ -731,6 +731,15 @@ fn save_load_gives_identical_outputs_and_next_update() {
         let mut b = RdpgAgent::load(&dir).unwrap();
         assert_eq!(b.updates(), 3);
         assert_eq!(a.weights(), b.weights());
+        let bounds = |x: &RdpgAgent| x.fork.as_ref().map(|f| f.bounds);
+        assert_eq!(bounds(&a), bounds(&b));
+        assert_eq!(bounds(&a).is_some(), tag == "fork");
+        if let Some(f) = &a.fork {
+            assert!(f.bounds.0 < 0.0 && f.bounds.1 > 0.0, "{:?}", f.bounds);
+        }
+        // An agent without FORK writes the same agent.json as before FORK existed.
+        let meta = std::fs::read_to_string(dir.join("agent.json")).unwrap();
+        assert_eq!(meta.contains("fork"), tag == "fork", "{meta}");
         // Same actions from the same states.
         let obs: Vec<f32> = (0..2 * OBS).map(|i| (i as f32 * 0.37).sin()).collect();
         let (mut sa, mut sb) = (a.initial_state(2), b.initial_state(2));
@@ -1511,7 +1520,7 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
         grad_clip: Some(0.5),
         ..recurrent.clone()
     };
-    for cfg in [recurrent, feed_forward, deferred] {
+    for cfg in [recurrent, feed_forward, deferred, fork_cfg()] {
         let parallel = RdpgConfig {
             parallel_twins: true,
             ..cfg.clone()
@@ -1565,9 +1574,9 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
 }
 
 /// The actor's gradient of FORK's term as computed (predicted observations held constant, the
-/// models and the critic frozen) equals the gradient of the term written as TD3-FORK's code
-/// writes it (`detach` exactly where its authors put it, models trainable), and reaches no
-/// model or critic parameter.
+/// reward model frozen) equals the gradient of the term written as TD3-FORK's code writes it
+/// (`detach` exactly where its authors put it, models trainable), and reaches neither model.
+/// (The update freezes the critic around the actor's loss; see the test below.)
 #[test]
 fn fork_term_equals_the_reference_formulation() {
     let cfg = fork_cfg();
@@ -1579,7 +1588,6 @@ fn fork_term_equals_the_reference_formulation() {
     for _ in 0..3 {
         f.train(&p); // bounds set, models away from their initialisation
     }
-    assert!(f.bounds.0 < 0.0 && f.bounds.1 > 0.0, "{:?}", f.bounds);
     let actor_grads = |agent: &RdpgAgent| -> Vec<Vec<f64>> {
         sorted_vars(&agent.actor_vs)
             .iter()
@@ -1590,13 +1598,10 @@ fn fork_term_equals_the_reference_formulation() {
     agent.actor_opt.zero_grad();
     f.dynamics_opt.zero_grad();
     f.reward_opt.zero_grad();
-    agent.critic_opt.zero_grad();
-    agent.critic_vs[0].freeze();
     let ours = f.actor_term(&agent.actor, &agent.critics[0], &p, gamma);
     ours.backward();
-    agent.critic_vs[0].unfreeze();
     let g_ours = actor_grads(&agent);
-    for (name, v) in f.vars().iter().chain(&sorted_vars(&agent.critic_vs[0])) {
+    for (name, v) in f.vars() {
         let g = v.grad();
         assert!(
             !g.defined() || to_vec64(&g).iter().all(|&x| x == 0.0),
@@ -1644,6 +1649,41 @@ fn fork_term_equals_the_reference_formulation() {
             "actor variable {k}: no gradient"
         );
         assert_close(a, r, 1e-10, &format!("actor variable {k}"));
+    }
+}
+
+/// The term enters the actor's update exactly when it should: an agent with weight 0, or
+/// with a threshold the model never meets, trains exactly like one without FORK's term (same
+/// critics, models and actor), and weight 0.5 moves only the actor (and its target).
+#[test]
+fn fork_term_moves_the_actor_only_when_gated_in() {
+    let with = |weight: f64, threshold: f64| RdpgConfig {
+        fork: Some(ForkConfig {
+            weight,
+            threshold,
+            ..fork_cfg().fork.unwrap()
+        }),
+        ..fork_cfg()
+    };
+    let train = |cfg: RdpgConfig| {
+        let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 9).unwrap();
+        // Two updates: the actor's first turn is the second (later critic updates would
+        // see the moved target actor).
+        let stats: Vec<UpdateStats> = (0..2)
+            .map(|k| agent.update(&batch(&cfg, 6, 0.5, 40 + k)))
+            .collect();
+        (agent.weights(), stats)
+    };
+    let (w_on, s_on) = train(with(0.5, 1e3));
+    let (w_zero, _) = train(with(0.0, 1e3));
+    let (w_gated, s_gated) = train(with(0.5, 1e-12));
+    assert_eq!(w_zero, w_gated, "weight 0 and a closed gate must agree");
+    assert!(s_on.iter().all(|s| s.model_loss.is_some()));
+    assert_eq!(s_on[1].fork_term, Some(true));
+    assert_eq!(s_gated[1].fork_term, Some(false));
+    for ((name, a), (_, b)) in w_on.iter().zip(&w_zero) {
+        let actor = name.starts_with("actor.") || name.starts_with("target.actor.");
+        assert_eq!(actor, a != b, "{name}: moved {}", a != b);
     }
 }
 
