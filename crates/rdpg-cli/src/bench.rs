@@ -147,13 +147,7 @@ fn bench_train(a: &TrainBenchArgs) -> Result<()> {
         opt: a.opt,
         updates: trainer.agent().updates(),
         seconds,
-        update_seconds: p.prepare
-            + p.scan
-            + p.window_nograd
-            + p.critic_step
-            + p.critic_rescan
-            + p.actor_step
-            + p.other,
+        update_seconds: p.total(),
         steps_per_sec: steps as f64 / seconds,
     };
     println!("{}", serde_json::to_string(&line)?);
@@ -217,6 +211,8 @@ struct PhaseMs {
     ms_scan: f64,
     ms_window_nograd: f64,
     ms_critic_step: f64,
+    /// FORK's model steps (agents with `agent.fork`; ~0 otherwise).
+    ms_models: f64,
     ms_critic_rescan: f64,
     ms_actor_step: f64,
     ms_other: f64,
@@ -228,6 +224,7 @@ impl From<rdpg_agents::rdpg::PhaseTimes> for PhaseMs {
             ms_scan: p.scan * 1e3,
             ms_window_nograd: p.window_nograd * 1e3,
             ms_critic_step: p.critic_step * 1e3,
+            ms_models: p.models * 1e3,
             ms_critic_rescan: p.critic_rescan * 1e3,
             ms_actor_step: p.actor_step * 1e3,
             ms_other: (p.prepare + p.other) * 1e3,

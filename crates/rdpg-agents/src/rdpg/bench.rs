@@ -145,6 +145,7 @@ fn per_update(mut p: PhaseTimes) -> PhaseTimes {
         &mut p.scan,
         &mut p.window_nograd,
         &mut p.critic_step,
+        &mut p.models,
         &mut p.critic_rescan,
         &mut p.actor_step,
         &mut p.other,

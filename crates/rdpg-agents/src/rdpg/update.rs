@@ -99,6 +99,18 @@ impl PhaseTimes {
         self.actor_step += o.actor_step;
         self.other += o.other;
     }
+
+    /// Seconds in all phases together.
+    pub fn total(&self) -> f64 {
+        self.prepare
+            + self.scan
+            + self.window_nograd
+            + self.critic_step
+            + self.models
+            + self.critic_rescan
+            + self.actor_step
+            + self.other
+    }
 }
 
 impl RdpgAgent {
