@@ -143,17 +143,35 @@ impl RdpgAgent {
             .cfg
             .parallel_twins
             .then(|| self.side.take().unwrap_or_default());
+        // FORK with `parallel_twins`: its models take their step on the second thread while
+        // this one runs both critics (the one-thread path of step 2, bit-identical to the
+        // split); without the second thread they step here after the critics.
+        let models_on_side = match (&mut side, self.fork.take()) {
+            (Some(side), Some(mut f)) => {
+                let p1 = p.shallow_clone();
+                side.start(self.cfg.flush_denormal, move || {
+                    let step = f.train(&p1);
+                    (f, step)
+                });
+                true
+            }
+            (_, f) => {
+                self.fork = f;
+                false
+            }
+        };
         clock.lap(|t| &mut t.prepare);
 
         // ---- 1. Scan: h_{-1} for every network, no gradient (paper Eq. (scan)). -------------
         let sc = match &mut side {
-            Some(side) => self.scan_all_parallel(&p, side),
-            None => self.scan_all(&p),
+            Some(side) if !models_on_side => self.scan_all_parallel(&p, side),
+            _ => self.scan_all(&p),
         };
         clock.lap(|t| &mut t.scan);
 
         // ---- 2. Critic: q along the window (with gradient) and its targets (without). -------
-        let (q0, critic_loss, actor_states) = if let Some(side) = &mut side {
+        let twin_side = side.as_mut().filter(|_| !models_on_side);
+        let (q0, critic_loss, actor_states) = if let Some(side) = twin_side {
             self.twin_critic_gradients(&p, &sc, side, &mut clock)
         } else {
             let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
@@ -178,6 +196,12 @@ impl RdpgAgent {
         // critic, or (Algorithm 1 order) rescanned after its Adam step.
         let critic_states_old =
             (!updated_critic).then(|| tch::no_grad(|| self.critic_states(&p, &sc.critics[0])));
+        let side_model_step = models_on_side.then(|| {
+            let side = side.as_mut().expect("started with the models' step");
+            let (f, step) = side.finish::<(super::fork::ForkModels, super::fork::ModelStep)>();
+            self.fork = Some(f);
+            step
+        });
         // Adam for the critics: one step, taken now or after the actor's backward pass. With
         // `parallel_twins` critic 1's share (and on the actor's turn its target's soft update)
         // runs on the second thread until the end of the update: nothing below reads critic 1.
@@ -213,7 +237,10 @@ impl RdpgAgent {
         clock.lap(|t| &mut t.critic_step);
 
         // ---- FORK's models: one step each on this batch (`fork.rs`). -------------------------
-        let model_step = self.fork.as_mut().map(|f| f.train(&p));
+        let model_step = match side_model_step {
+            Some(step) => Some(step),
+            None => self.fork.as_mut().map(|f| f.train(&p)),
+        };
         clock.lap(|t| &mut t.models);
 
         // ---- 3. Actor: deterministic policy gradient (Eq. (DPG)), no BPTT by default. ------
