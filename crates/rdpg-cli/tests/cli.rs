@@ -47,6 +47,24 @@ fn episode_rows(run: &std::path::Path) -> Vec<String> {
         .collect()
 }
 
+/// A run's `metrics.jsonl` episode rows without the wall-clock fields (wall, update_ms).
+fn metrics_rows(run: &std::path::Path) -> Vec<Value> {
+    std::fs::read_to_string(run.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|v| v["kind"] == "episode")
+        .map(|mut v| {
+            let row = v.as_object_mut().unwrap();
+            row.remove("wall");
+            if let Some(u) = row.get_mut("learner").and_then(Value::as_object_mut) {
+                u.remove("update_ms");
+            }
+            v
+        })
+        .collect()
+}
+
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("rdpg-cli-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -1092,7 +1110,19 @@ fn a_diverging_run_stops_and_keeps_its_last_good_checkpoint() {
 /// also switches `agent.parallel_twins` off (an edit a resume accepts: it changes no number).
 #[test]
 fn a_walker_run_resumes_bit_identically() {
-    let cfg = configs_dir().join("walker-td3.toml");
+    // TD3, and TD3 with FORK (its look-ahead term kept on: the threshold is out of reach of a
+    // short run's model), whose models step on the second thread with `parallel_twins` and on
+    // the first without.
+    for (name, extra) in [
+        ("walker-td3", None),
+        ("walker-td3-fork", Some("agent.fork.threshold=1000.0")),
+    ] {
+        walker_resumes_bit_identically(name, extra);
+    }
+}
+
+fn walker_resumes_bit_identically(name: &str, extra: Option<&str>) {
+    let cfg = configs_dir().join(format!("{name}.toml"));
     let train = |out: &std::path::Path, steps: u64, resume: bool| {
         let mut c = rdpg();
         c.args(["train", "--quiet", "--steps", &steps.to_string()]);
@@ -1106,13 +1136,16 @@ fn a_walker_run_resumes_bit_identically() {
                 "run.checkpoint_every=100000",
                 "train.eval_every=0",
                 "train.test_episodes=1",
-            ] {
+            ]
+            .into_iter()
+            .chain(extra)
+            {
                 c.args(["--set", s]);
             }
         }
         ok(&mut c);
     };
-    let (one, two) = (tmp("walker-one"), tmp("walker-two"));
+    let (one, two) = (tmp(&format!("{name}-one")), tmp(&format!("{name}-two")));
     for d in [&one, &two] {
         let _ = std::fs::remove_dir_all(d);
     }
@@ -1123,7 +1156,7 @@ fn a_walker_run_resumes_bit_identically() {
     let edited = text.replace("parallel_twins = true", "parallel_twins = false");
     assert_ne!(
         edited, text,
-        "walker-td3.toml runs the twin critics in parallel"
+        "{name}.toml runs the twin critics in parallel"
     );
     std::fs::write(&config, edited).unwrap();
     train(&two, 1500, true);
@@ -1132,9 +1165,15 @@ fn a_walker_run_resumes_bit_identically() {
     assert_eq!(
         latest_weights(&one),
         latest_weights(&two),
-        "resumed walker run differs"
+        "resumed {name} run differs"
     );
     assert_eq!(episode_rows(&one), episode_rows(&two));
+    if extra.is_some() {
+        // The learner's rows carry FORK's statistics, the term used on every actor update.
+        let metrics = std::fs::read_to_string(two.join("metrics.jsonl")).unwrap();
+        assert!(metrics.contains("\"fork_share\":1.0"), "{metrics}");
+        assert_eq!(metrics_rows(&one), metrics_rows(&two));
+    }
 
     // The stopped run's update, timed as it stands in every thread mode; nothing is saved.
     let out = ok(rdpg()
