@@ -6,14 +6,8 @@
 # thread, parallel_twins off. Prints one Markdown row per round (updates/s).
 # Usage: scripts/bench/bench_fork_update.sh [ROUNDS] [ITERS]   (defaults: 3, 200)
 set -euo pipefail
-cd "$(dirname "$0")/../.."
-rounds="${1:-3}"
-iters="${2:-200}"
-rdpg=target/release/rdpg
-py=.venv/bin/python
-tmp="$(mktemp -d)"
-trap 'rm -rf "$tmp"' EXIT
-ups() { grep -o '"updates_per_sec": *[0-9.]*' | cut -d: -f2 | tr -d ' '; }
+# shellcheck source=scripts/bench/update_common.sh
+source "$(dirname "$0")/update_common.sh"
 sed -E 's/^parallel_twins = true.*/parallel_twins = false/' configs/walker-td3.toml > "$tmp/td3.toml"
 sed -E -e 's/^parallel_twins = true.*/parallel_twins = false/' -e 's/^threshold = .*/threshold = 1e9/' \
   configs/walker-td3-fork.toml > "$tmp/fork.toml"

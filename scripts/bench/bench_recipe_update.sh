@@ -7,14 +7,8 @@
 # Needs target/release/rdpg (scripts/setup.sh) and torch in .venv
 # (.venv/bin/pip install -r scripts/setup/requirements_reference.txt).
 set -euo pipefail
-cd "$(dirname "$0")/../.."
-rounds="${1:-3}"
-iters="${2:-200}"
-rdpg=target/release/rdpg
-py=.venv/bin/python
-tmp="$(mktemp -d)"
-trap 'rm -rf "$tmp"' EXIT
-ups() { grep -o '"updates_per_sec": *[0-9.]*' | cut -d: -f2 | tr -d ' '; }
+# shellcheck source=scripts/bench/update_common.sh
+source "$(dirname "$0")/update_common.sh"
 # PyTorch with the malloc settings rdpg applies to itself (rdpg_core::malloc, MMAP_THRESHOLD /
 # TRIM_THRESHOLD: keep this in step with them).
 tuned=GLIBC_TUNABLES=glibc.malloc.mmap_threshold=$((64 << 20)):glibc.malloc.trim_threshold=$((512 << 20))

@@ -174,12 +174,14 @@ impl ForkModels {
     }
 
     /// `J_fork` of the module docs (a scalar with gradient for the actor only; multiply by
-    /// the weight). `critic` is the first critic, frozen by the caller.
+    /// the weight). `critic` is the first critic, frozen by the caller; `a0` is `mu(o_i)`
+    /// with its graph, `[N*l, A]`, as the actor loss computed it.
     pub(super) fn actor_term(
         &mut self,
         actor: &Actor,
         critic: &Critic,
         p: &Prepared,
+        a0: &Tensor,
         gamma: f64,
     ) -> Tensor {
         let (n, l) = (p.n, p.l);
@@ -191,13 +193,12 @@ impl ForkModels {
                 .step(o, &actor.core.zero_state(n * l, kind, o.device()))
                 .0
         };
-        let a0 = mu(&obs); // mu(o_i), [M, A]
-        let o1 = tch::no_grad(|| self.predict(&obs, &a0)); // ô1, [M, D]
+        let o1 = tch::no_grad(|| self.predict(&obs, a0)); // ô1, [M, D]
         let a1 = mu(&o1);
         let o2 = tch::no_grad(|| self.predict(&o1, &a1)); // ô2
         let a2 = mu(&o2);
         self.reward_vs.freeze();
-        let r1 = self.reward(&obs, &o1, &a0); // [M]
+        let r1 = self.reward(&obs, &o1, a0); // [M]
         let r2 = self.reward(&o1, &o2, &a1);
         self.reward_vs.unfreeze();
         let zero_c = critic.core.zero_state(n * l, kind, obs.device());

@@ -532,7 +532,7 @@ fn actor_loss_gradient_matches_finite_differences() {
                 Some((h, c)) => ActorInput::Detached { h, c },
                 None => ActorInput::Bptt { h0: &sc.actor },
             };
-            actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs)
+            actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs).0
         };
         agent.actor_opt.zero_grad();
         loss(&agent).backward();
@@ -562,7 +562,9 @@ fn bptt_and_per_step_gradients_differ_but_agree_on_the_first_step() {
             None => ActorInput::Bptt { h0: &sc.actor },
         };
         agent.actor_opt.zero_grad();
-        actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs).backward();
+        actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs)
+            .0
+            .backward();
         sorted_vars(&agent.actor_vs)
             .iter()
             .flat_map(|(_, v)| to_vec64(&v.grad()))
@@ -1337,6 +1339,7 @@ fn update_path_gradients_hold_targets_scans_and_states_constant() {
                     ActorInput::Detached { h: &h, c: &c },
                     &cs,
                 )
+                .0
             };
             agent.actor_opt.zero_grad();
             agent.critic_opt.zero_grad();
@@ -1394,6 +1397,7 @@ fn actor_sees_the_critic_in_algorithm_1_order() {
                     ActorInput::Detached { h: &h, c: &c },
                     cs,
                 )
+                .0
             })
             .double_value(&[])
         };
@@ -1595,10 +1599,15 @@ fn fork_term_equals_the_reference_formulation() {
             .collect()
     };
 
+    // mu(o_i) as the update hands it over: the actions the actor loss differentiated through.
+    let sc = tch::no_grad(|| agent.scan_all(&p));
+    let cs = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
+    let input = ActorInput::Bptt { h0: &sc.actor }; // feed-forward: no per-step states
+    let (_, a0) = actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs);
     agent.actor_opt.zero_grad();
     f.dynamics_opt.zero_grad();
     f.reward_opt.zero_grad();
-    let ours = f.actor_term(&agent.actor, &agent.critics[0], &p, gamma);
+    let ours = f.actor_term(&agent.actor, &agent.critics[0], &p, &a0, gamma);
     ours.backward();
     let g_ours = actor_grads(&agent);
     for (name, v) in f.vars() {

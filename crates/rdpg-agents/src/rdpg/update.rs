@@ -261,12 +261,14 @@ impl RdpgAgent {
             // Critic 0 is a constant here: no gradients are computed or accumulated for it
             // (the only critic the actor loss reads).
             self.critic_vs[0].freeze();
-            let mut loss = actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
-            // FORK: + w J_fork while the dynamics model is accurate enough.
+            let (mut loss, a0) =
+                actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
+            // FORK: + w J_fork while the dynamics model is accurate enough (from the same
+            // actions mu(o_i), [N*l, A]).
             if let (Some(f), Some(m)) = (&mut self.fork, &model_step) {
                 if m.use_term {
                     let w = f.cfg.weight;
-                    let j = f.actor_term(&self.actor, &self.critics[0], &p, self.cfg.gamma);
+                    let j = f.actor_term(&self.actor, &self.critics[0], &p, &a0, self.cfg.gamma);
                     loss += j * w;
                 }
             }
@@ -953,15 +955,16 @@ pub(super) enum ActorInput<'a> {
     Bptt { h0: &'a RecState },
 }
 
-/// `-1/N sum_n 1/len_n sum_i Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})` (paper Eq. (DPG)).
-/// `critic_states` are the critic's `(h_{i-1}, c_{i-1})`, `[N, l, Hc]`.
+/// `-1/N sum_n 1/len_n sum_i Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})` (paper Eq. (DPG)),
+/// and the actions `mu(o_i | h^A_{i-1})` it differentiates through, `[N*l, A]` (FORK's term
+/// reuses them). `critic_states` are the critic's `(h_{i-1}, c_{i-1})`, `[N, l, Hc]`.
 pub(super) fn actor_loss(
     actor: &Actor,
     critic: &Critic,
     p: &Prepared,
     input: ActorInput<'_>,
     critic_states: &(Tensor, Tensor),
-) -> Tensor {
+) -> (Tensor, Tensor) {
     let (n, l) = (p.n, p.l);
     let obs = p.obs_win.narrow(1, 0, l); // [N, l, D]
     let d = obs.size()[2];
@@ -991,7 +994,8 @@ pub(super) fn actor_loss(
         c: critic_states.1.reshape([1, n * l, hc]),
     };
     let (q, _) = critic.step(&obs_flat, &a, &stc); // [N*l]
-    -(q.reshape([n, l]) * &p.actor_w).sum(a.kind()) / n as f64
+    let loss = -(q.reshape([n, l]) * &p.actor_w).sum(a.kind()) / n as f64;
+    (loss, a)
 }
 
 /// Per-phase stopwatch (no-op when profiling is off).
