@@ -14,6 +14,7 @@ mod report;
 mod rollout;
 mod rundir;
 mod select;
+mod stop;
 mod train;
 mod zoo;
 

@@ -273,22 +273,10 @@ fn keep_agent(trainer: &dyn Trainer, run: &RunDir, log: &RunLog) -> Result<()> {
 
 /// `rdpg train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
+    // Ctrl-C, SIGTERM and SIGHUP: finish the current step, save, exit 130 (a second one exits
+    // at once). First, before any thread exists (see `stop`).
     let stop = Arc::new(AtomicBool::new(false));
-    {
-        // Ctrl-C, SIGTERM and SIGHUP: finish the current step, save, exit 130. A second one
-        // exits at once (the last checkpoint on disk stays whole: checkpoints are committed
-        // by rename).
-        let stop = stop.clone();
-        ctrlc::set_handler(move || {
-            if stop.swap(true, Ordering::SeqCst) {
-                eprintln!(
-                    "second interrupt: exiting without saving (the last checkpoint is intact)"
-                );
-                std::process::exit(130);
-            }
-        })
-        .context("installing the signal handler")?;
-    }
+    crate::stop::install(stop.clone())?;
     let (run, exp, mut trainer, _lock) = if let Some(dir) = &a.resume {
         let run = RunDir::new(dir);
         if !run.exists() {

@@ -968,6 +968,40 @@ fn every_config_trains() {
     }
 }
 
+/// A training process is never interrupted by a stop signal: every training thread blocks
+/// SIGHUP, SIGINT and SIGTERM (libtorch's oneDNN LSTM training kernels corrupt the heap when a signal
+/// frame lands on them, `scripts/repro/onednn_lstm_signals.py`), and one thread named
+/// `rdpg-signals` takes them with sigwait.
+#[cfg(target_os = "linux")]
+fn stop_signals_reach_no_training_thread(pid: u32) {
+    // Bit n - 1 for signal n: SIGHUP (1), SIGINT (2), SIGTERM (15).
+    const STOP: u64 = 1 | 1 << 1 | 1 << 14;
+    let mut names = Vec::new();
+    for task in std::fs::read_dir(format!("/proc/{pid}/task")).unwrap() {
+        let task = task.unwrap().path();
+        // (A thread that ended since the listing is skipped.)
+        let (Ok(name), Ok(status)) = (
+            std::fs::read_to_string(task.join("comm")),
+            std::fs::read_to_string(task.join("status")),
+        ) else {
+            continue;
+        };
+        let blocked = status
+            .lines()
+            .find_map(|l| l.strip_prefix("SigBlk:"))
+            .map(|hex| u64::from_str_radix(hex.trim(), 16).unwrap())
+            .unwrap();
+        let name = name.trim().to_string();
+        // (The signal thread shows them unblocked while it waits in sigwait.)
+        if name != "rdpg-signals" {
+            assert_eq!(blocked & STOP, STOP, "thread {name} can be interrupted");
+        }
+        names.push(name);
+    }
+    assert!(names.len() >= 2, "{names:?}");
+    assert!(names.iter().any(|n| n == "rdpg-signals"), "{names:?}");
+}
+
 /// Ctrl-C (SIGINT) saves `checkpoints/latest` before exiting, and the run resumes from it.
 #[test]
 fn interrupt_saves_and_the_run_resumes() {
@@ -995,6 +1029,8 @@ fn interrupt_saves_and_the_run_resumes() {
         rdpg().args(["train", "--quiet", "--resume"]).arg(&dir),
         &["in use by another"],
     );
+    #[cfg(target_os = "linux")]
+    stop_signals_reach_no_training_thread(child.id());
     // SIGTERM (as from a scheduler) saves like Ctrl-C, and the exit status says it stopped.
     ok(Command::new("kill").args(["-TERM", &child.id().to_string()]));
     let out = child.wait_with_output().unwrap();

@@ -1,0 +1,54 @@
+//! Stop requests for `rdpg train` (Ctrl-C, SIGTERM, SIGHUP), taken off the computing threads.
+//!
+//! A signal handler runs on whichever thread the kernel interrupts, with a signal frame pushed
+//! onto that thread's stack. libtorch's oneDNN LSTM training kernels (AVX-512, torch 2.11) do
+//! not survive being interrupted: a signal landing inside one corrupts the heap (glibc aborts
+//! with "corrupted size vs. prev_size while consolidating", or the process segfaults) —
+//! reproduced within seconds by `scripts/repro/onednn_lstm_signals.py`, and the cause of the
+//! rare aborts of recurrent runs stopped with Ctrl-C or SIGTERM (RESULTS.md). So, on Unix, no
+//! thread is ever interrupted: the three signals are blocked in the main thread before any
+//! other thread exists (every later thread, libtorch's included, inherits the mask), and one
+//! thread, `rdpg-signals`, takes them synchronously with `sigwait`.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+
+/// Name of the thread that takes the stop signals (Unix).
+pub const SIGNAL_THREAD: &str = "rdpg-signals";
+
+/// Routes Ctrl-C, SIGTERM and SIGHUP to `stop`: the first sets it (the training loop then
+/// finishes its step, saves and exits 130); a second exits at once with 130. Call it from the
+/// main thread before any other thread is spawned.
+pub fn install(stop: Arc<AtomicBool>) -> Result<()> {
+    #[cfg(unix)]
+    {
+        use nix::sys::signal::{SigSet, Signal};
+        let mut set = SigSet::empty();
+        for s in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
+            set.add(s);
+        }
+        set.thread_block()
+            .context("blocking the stop signals in the training threads")?;
+        std::thread::Builder::new()
+            .name(SIGNAL_THREAD.into())
+            .spawn(move || {
+                while set.wait().is_ok() {
+                    on_signal(&stop);
+                }
+            })
+            .context("starting the signal thread")?;
+    }
+    #[cfg(not(unix))]
+    ctrlc::set_handler(move || on_signal(&stop)).context("installing the signal handler")?;
+    Ok(())
+}
+
+fn on_signal(stop: &AtomicBool) {
+    if stop.swap(true, Ordering::SeqCst) {
+        // The last checkpoint on disk stays whole: checkpoints are committed by rename.
+        eprintln!("second interrupt: exiting without saving (the last checkpoint is intact)");
+        std::process::exit(130);
+    }
+}
