@@ -16,7 +16,8 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 
 /// Name of the thread that takes the stop signals (Unix).
-pub const SIGNAL_THREAD: &str = "rdpg-signals";
+#[cfg(unix)]
+const SIGNAL_THREAD: &str = "rdpg-signals";
 
 /// Routes Ctrl-C, SIGTERM and SIGHUP to `stop`: the first sets it (the training loop then
 /// finishes its step, saves and exits 130); a second exits at once with 130. Call it from the
