@@ -7,7 +7,7 @@
 #   report/comparison.md       the Table-I-shaped comparison (named rewards and metrics)
 #   report/walker-rdpg.gif     the trained RDPG walker on a held-out seed
 #   report/runs/walker-*/      the run directories (metrics, checkpoints, resolved configs)
-# A few minutes on a 2-core machine: far too short to learn to walk (see RESULTS.md for longer
+# About a minute on a 2-core machine (RESULTS.md, "The README's main command"): far too short to learn to walk (see RESULTS.md for longer
 # runs); STEPS=N changes the budget. Needs target/release/rdpg (scripts/setup.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
