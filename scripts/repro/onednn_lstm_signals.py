@@ -1,13 +1,16 @@
-"""libtorch's oneDNN LSTM training kernels do not survive signals: a minimal reproduction.
+"""libtorch's oneDNN LSTM backward does not survive signals: a minimal reproduction.
 
 Trains a small LSTM (torch.lstm, batch_first, a given initial state: the call rdpg's critic
-makes, at walker/memory sizes) in a loop for SECONDS while a profiling timer sends SIGPROF to
-the process every PERIOD seconds, and prints one line if the process survives. On the 2-vCPU
+makes, at the cue task's sizes) in a loop for SECONDS while a profiling timer sends SIGPROF to
+the process every PERIOD seconds of CPU time (the kernel rounds it to its tick: ~250 signals/s
+here), and prints one line if the process survives. On the 2-vCPU
 AMD EPYC (Zen 4, AVX-512) VM with torch 2.11.0 the `train` mode dies within seconds
 ("corrupted size vs. prev_size while consolidating", or a segfault); see RESULTS.md for the
 measured table. Modes:
 
-  train     forward + backward with a signal handler on the computing thread (crashes)
+  train     forward + backward, a signal handler on the computing thread (crashes)
+  train-fwd train, the signal unblocked only while the forward with a graph runs
+  train-bwd train, the signal unblocked only while the backward runs (crashes)
   fwd       no-grad forwards only (the acting / evaluation path)
   mask      train, with the signals blocked in the computing thread and taken by another
             thread (what `rdpg train` does since: crates/rdpg-cli/src/stop.rs)
@@ -39,6 +42,15 @@ if mode == "mask":
     signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGPROF])
 if mode != "none":
     signal.setitimer(signal.ITIMER_PROF, period, period)
+SIG = [signal.SIGPROF]
+
+
+def only_in(phase):
+    """In train-fwd/train-bwd: the signal may land in `phase` only (pending ones land later)."""
+    if mode in ("train-fwd", "train-bwd"):
+        want = mode == "train-" + phase
+        signal.pthread_sigmask(signal.SIG_UNBLOCK if want else signal.SIG_BLOCK, SIG)
+
 
 torch.manual_seed(0)
 w = [torch.randn(4 * H, IN), torch.randn(4 * H, H), torch.randn(4 * H), torch.randn(4 * H)]
@@ -52,10 +64,16 @@ while time.time() - t0 < seconds:
     if mode != "fwd":  # a critic window: forward with a graph, then backward
         x = torch.randn(B, T, IN, requires_grad=True)
         hc = (torch.randn(1, B, H), torch.randn(1, B, H))
+        only_in("fwd")
         out, h, _ = torch.lstm(x, hc, w, True, 1, 0.0, True, False, True)
-        (out.square().mean() + h.sum()).backward()
+        loss = out.square().mean() + h.sum()
+        only_in("bwd")
+        loss.backward()
+        only_in("neither")
         for t in w:
             t.grad = None
+        if mode in ("train-fwd", "train-bwd"):
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, SIG)  # pending signals land here
     it += 1
 signal.setitimer(signal.ITIMER_PROF, 0, 0)
 print(f"survived: {mode}, {it} iterations in {time.time() - t0:.0f} s, {handled[0]} signals handled")

@@ -1,8 +1,8 @@
 //! Stop requests for `rdpg train` (Ctrl-C, SIGTERM, SIGHUP), taken off the computing threads.
 //!
 //! A signal handler runs on whichever thread the kernel interrupts, with a signal frame pushed
-//! onto that thread's stack. libtorch's oneDNN LSTM training kernels (AVX-512, torch 2.11) do
-//! not survive being interrupted: a signal landing inside one corrupts the heap (glibc aborts
+//! onto that thread's stack. libtorch's oneDNN LSTM backward (AVX-512, torch 2.11) does not
+//! survive being interrupted: a signal landing inside it corrupts the heap (glibc aborts
 //! with "corrupted size vs. prev_size while consolidating", or the process segfaults) —
 //! reproduced within seconds by `scripts/repro/onednn_lstm_signals.py`, and the cause of the
 //! rare aborts of recurrent runs stopped with Ctrl-C or SIGTERM (RESULTS.md). So, on Unix, no

@@ -969,8 +969,8 @@ fn every_config_trains() {
 }
 
 /// A training process is never interrupted by a stop signal: every training thread blocks
-/// SIGHUP, SIGINT and SIGTERM (libtorch's oneDNN LSTM training kernels corrupt the heap when a signal
-/// frame lands on them, `scripts/repro/onednn_lstm_signals.py`), and one thread named
+/// SIGHUP, SIGINT and SIGTERM (libtorch's oneDNN LSTM backward corrupts the heap when a signal
+/// frame lands on it, `scripts/repro/onednn_lstm_signals.py`), and one thread named
 /// `rdpg-signals` takes them with sigwait.
 #[cfg(target_os = "linux")]
 fn stop_signals_reach_no_training_thread(pid: u32) {
