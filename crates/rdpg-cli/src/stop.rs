@@ -4,11 +4,14 @@
 //! onto that thread's stack. libtorch's oneDNN LSTM backward (AVX-512, torch 2.11) does not
 //! survive being interrupted: a signal landing inside it corrupts the heap (glibc aborts
 //! with "corrupted size vs. prev_size while consolidating", or the process segfaults) —
-//! reproduced within seconds by `scripts/repro/onednn_lstm_signals.py`, and the cause of the
-//! rare aborts of recurrent runs stopped with Ctrl-C or SIGTERM (RESULTS.md). So, on Unix, no
+//! reproduced within seconds by `scripts/repro/onednn_lstm_signals.py`, and the likely cause of
+//! the rare aborts of recurrent runs stopped with Ctrl-C or SIGTERM (RESULTS.md). So, on Unix, no
 //! thread is ever interrupted: the three signals are blocked in the main thread before any
 //! other thread exists (every later thread, libtorch's included, inherits the mask), and one
-//! thread, `rdpg-signals`, takes them synchronously with `sigwait`.
+//! thread, `rdpg-signals`, takes them synchronously with `sigwait`. (Linux keeps a blocked signal
+//! pending even when its disposition is "ignore", as under `nohup` or in a script's background
+//! job, so those runs stop on the signals as they did with a handler; systems that discard
+//! ignored signals, e.g. macOS, do not.)
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -35,6 +38,7 @@ pub fn install(stop: Arc<AtomicBool>) -> Result<()> {
         std::thread::Builder::new()
             .name(SIGNAL_THREAD.into())
             .spawn(move || {
+                // (sigwait can only fail on an invalid set, which this is not.)
                 while set.wait().is_ok() {
                     on_signal(&stop);
                 }
