@@ -6,7 +6,9 @@ the process every PERIOD seconds of CPU time (the kernel rounds it to its tick: 
 here), and prints one line if the process survives. On the 2-vCPU
 AMD EPYC (Zen 4, AVX-512) VM with torch 2.11.0 the `train` mode dies within seconds
 ("corrupted size vs. prev_size while consolidating", or a segfault); see RESULTS.md for the
-measured table. Modes:
+measured table. The cause is oneDNN's bug #4845 (its generated f32 GEMM kernels point rsp at
+a heap workspace, so a signal frame lands on the heap), fixed in oneDNN 3.11.2; torch 2.11.0
+ships oneDNN 3.10.2. Modes:
 
   train     forward + backward, a signal handler on the computing thread (crashes)
   train-fwd train, the signal unblocked only while the forward with a graph runs
