@@ -7,10 +7,10 @@
 //! reproduced within seconds by `scripts/repro/onednn_lstm_signals.py`, and the likely cause of
 //! the rare aborts of recurrent runs stopped with Ctrl-C or SIGTERM (RESULTS.md). It is oneDNN's
 //! bug #4845 (its generated f32 GEMM kernels point `rsp` at the heap while they run), fixed in
-//! oneDNN 3.11.2; torch 2.11.0 ships oneDNN 3.10.2. So, on Unix, no
-//! thread is ever interrupted: the three signals are blocked in the main thread before any
-//! other thread exists (every later thread, libtorch's included, inherits the mask), and one
-//! thread, `rdpg-signals`, takes them synchronously with `sigwait`. (Linux keeps a blocked signal
+//! oneDNN 3.11.2; torch 2.11.0 ships oneDNN 3.10.2. So, on Unix, no thread is ever interrupted:
+//! the three signals are blocked in the main thread before any other thread exists (every later
+//! thread, libtorch's included, inherits the mask), and one thread, `rdpg-signals`, takes them
+//! synchronously with `sigwait`. (Linux keeps a blocked signal
 //! pending even when its disposition is "ignore", as under `nohup` or in a script's background
 //! job, so those runs stop on the signals as they did with a handler; systems that discard
 //! ignored signals, e.g. macOS, do not.)
