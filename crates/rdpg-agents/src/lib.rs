@@ -114,10 +114,14 @@ pub fn cuda_available() -> bool {
     tch::Cuda::is_available()
 }
 
-/// Sets the number of intra-op CPU threads libtorch uses (process-wide).
+/// Sets the number of intra-op CPU threads libtorch uses (process-wide); `n` is capped at
+/// [`MAX_THREADS`].
 pub fn set_num_threads(n: usize) {
-    tch::set_num_threads(n as i32);
+    tch::set_num_threads(n.clamp(1, MAX_THREADS) as i32);
 }
+
+/// The most intra-op threads a config may ask for (`num_threads`).
+pub const MAX_THREADS: usize = 1024;
 
 #[cfg(test)]
 mod tests {

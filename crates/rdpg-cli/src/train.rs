@@ -129,40 +129,41 @@ fn save_latest(
 }
 
 /// A rough upper estimate of the memory a run of `exp` needs, in bytes: the replay (or PPO's
-/// rollout), the environments, and the activations of one update.
-fn memory_estimate(exp: &Experiment) -> Result<u64> {
+/// rollout), the environments, and the activations of one update. In floating point, so that
+/// absurd sizes give an absurd estimate rather than an overflow.
+fn memory_estimate(exp: &Experiment) -> Result<f64> {
     let env = rdpg_envs::make_with(&exp.train.env, &exp.train.env_options())?;
     let (obs, act) = (
-        env.observation_space().dim() as u64,
-        env.action_space().dim() as u64,
+        env.observation_space().dim() as f64,
+        env.action_space().dim() as f64,
     );
-    let envs = exp.train.num_envs as u64;
+    let envs = exp.train.num_envs as f64;
     // A walker with its Box2D world, terrain and lidar, with room to spare.
-    let per_env = 512 * 1024;
+    let per_env = 512.0 * 1024.0;
     let bytes = match exp.learner() {
         rdpg_agents::Learner::OffPolicy { agent, off_policy } => {
-            let critics = if agent.twin_critic { 2 } else { 1 };
+            let critics = if agent.twin_critic { 2.0 } else { 1.0 };
             let state = if agent.burn_in_from_stored_state {
-                2 * (agent.actor_hidden + critics * agent.critic_hidden) as u64
+                2.0 * (agent.actor_hidden as f64 + critics * agent.critic_hidden as f64)
             } else {
-                0
+                0.0
             };
             let injected = off_policy
                 .injection
                 .as_ref()
                 .map_or(0.0, |i| i.max_fraction);
-            let per_step = 4 * (obs + act + 2 + state);
-            let replay = (off_policy.replay_capacity as f64 * (1.0 + injected)) as u64 * per_step;
-            let width = (agent.embed_dim() + agent.actor_hidden + agent.critic_hidden) as u64;
-            let steps = (agent.scan_len + agent.opt_len + 1) as u64;
+            let per_step = 4.0 * (obs + act + 2.0 + state);
+            let replay = off_policy.replay_capacity as f64 * (1.0 + injected) * per_step;
+            let width = (agent.embed_dim() + agent.actor_hidden + agent.critic_hidden) as f64;
+            let steps = agent.scan_len as f64 + agent.opt_len as f64 + 1.0;
             // Inputs, gates and saved activations of the online and target networks.
-            let batch = agent.batch_size as u64 * steps * 4 * (obs + act + 16 * width) * 4;
+            let batch = agent.batch_size as f64 * steps * 4.0 * (obs + act + 16.0 * width) * 4.0;
             replay + batch
         }
         rdpg_agents::Learner::Ppo(p) => {
-            let rollout = p.rollout_steps as u64 * envs * 4 * (obs + act + 8);
-            let width: u64 = p.hidden.iter().map(|&h| h as u64).sum();
-            rollout + p.minibatch_size as u64 * 4 * (obs + act + 8 * width) * 4
+            let rollout = p.rollout_steps as f64 * envs * 4.0 * (obs + act + 8.0);
+            let width: f64 = p.hidden.iter().map(|&h| h as f64).sum();
+            rollout + p.minibatch_size as f64 * 4.0 * (obs + act + 8.0 * width) * 4.0
         }
     };
     Ok(bytes + envs * per_env)
@@ -172,15 +173,15 @@ fn memory_estimate(exp: &Experiment) -> Result<u64> {
 fn check_memory(exp: &Experiment) -> Result<()> {
     let need = memory_estimate(exp)?;
     let available = crate::rundir::meminfo_bytes("MemAvailable");
-    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
-    if let Some(avail) = available.filter(|&a| need > a) {
+    let gib = |b: f64| b / (1u64 << 30) as f64;
+    if let Some(avail) = available.filter(|&a| need > a as f64) {
         bail!(
             "this run needs about {:.1} GiB (replay or rollout, {} environments, one update's \
              activations) but the machine has {:.1} GiB available: lower \
              off_policy.replay_capacity, agent.batch_size or train.num_envs",
             gib(need),
             exp.train.num_envs,
-            gib(avail)
+            gib(avail as f64)
         );
     }
     Ok(())
@@ -536,21 +537,27 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     Ok(())
 }
 
-/// The `--actions-out` file of `rdpg eval`: one JSON line per episode, flushed and synced at
-/// the end. A run with an action repeat `k > 1` lists the agent's actions and says
+/// The `--actions-out` file of `rdpg eval`: one JSON line per episode, written to
+/// `FILE.partial` and renamed to `FILE` once the evaluation has finished (a failed one leaves
+/// any earlier `FILE` as it was). A run with an action repeat `k > 1` lists the agent's actions and says
 /// `"action_repeat": k` (each held for `k` frames, the last one until the episode ends).
 struct ActionsWriter {
     path: PathBuf,
+    partial: PathBuf,
     out: std::io::BufWriter<std::fs::File>,
     action_repeat: usize,
 }
 
 impl ActionsWriter {
     fn create(path: &Path, action_repeat: usize) -> Result<Self> {
-        let f = std::fs::File::create(path)
-            .with_context(|| format!("cannot create --actions-out file {}", path.display()))?;
+        let mut partial = path.as_os_str().to_owned();
+        partial.push(".partial");
+        let partial = PathBuf::from(partial);
+        let f = std::fs::File::create(&partial)
+            .with_context(|| format!("cannot create --actions-out file {}", partial.display()))?;
         Ok(Self {
             path: path.to_owned(),
+            partial,
             out: std::io::BufWriter::new(f),
             action_repeat,
         })
@@ -583,8 +590,14 @@ impl ActionsWriter {
             .into_inner()
             .map_err(|e| e.into_error())
             .and_then(|f| f.sync_all().map(|_| f));
-        f.with_context(|| format!("cannot write --actions-out file {}", self.path.display()))?;
-        Ok(())
+        f.with_context(|| format!("cannot write --actions-out file {}", self.partial.display()))?;
+        std::fs::rename(&self.partial, &self.path).with_context(|| {
+            format!(
+                "cannot rename {} to {}",
+                self.partial.display(),
+                self.path.display()
+            )
+        })
     }
 }
 
@@ -602,8 +615,16 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             let mut out = ActionsWriter::create(path, exp.train.action_repeat)?;
             let r = evaluate_policy_traced(policy.as_mut(), &exp.train, episodes, seed, &mut |e| {
                 out.episode(e)
-            })
-            .with_context(|| format!("evaluating with --actions-out {}", path.display()))?;
+            });
+            let r = match r {
+                Ok(r) => r,
+                Err(e) => {
+                    let _ = std::fs::remove_file(&out.partial);
+                    return Err(e).with_context(|| {
+                        format!("evaluating with --actions-out {}", path.display())
+                    });
+                }
+            };
             out.finish()?;
             r
         }

@@ -587,6 +587,25 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             .arg(&one),
         &["/nonexistent/dir/a.jsonl"],
     );
+    // Seeds that would run past the largest one are refused, and a failed evaluation leaves
+    // the earlier --actions-out file as it was (the new one is renamed into place at the end).
+    let before = std::fs::read_to_string(&actions).unwrap();
+    let max = u64::MAX.to_string();
+    fails(
+        rdpg()
+            .args(["eval", "--episodes", "2", "--seed", &max, "--actions-out"])
+            .arg(&actions)
+            .arg("--run")
+            .arg(&one),
+        &["largest seed"],
+    );
+    assert_eq!(std::fs::read_to_string(&actions).unwrap(), before);
+    assert!(!tmp("actions.jsonl.partial").exists());
+    let out = ok(rdpg()
+        .args(["eval", "--episodes", "1", "--seed", &max, "--run"])
+        .arg(&one));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(line["first_seed"], u64::MAX);
 
     // `rdpg zoo`: the best agent shipped without optimiser or replay; `eval` and `render`
     // read the entry like a run and score what its summary says.
@@ -849,6 +868,9 @@ fn train_rejects_bad_configs_naming_the_key() {
         ("off_policy.replay_capacity=1000000000000", "GiB available"),
         ("agent.batch_size=100000000", "agent.batch_size"),
         ("train.num_envs=100000", "train.num_envs"),
+        // Sizes that would overflow the estimate, or libtorch's thread count.
+        ("train.num_envs=35184372088832", "train.num_envs"),
+        ("agent.num_threads=2147483648", "num_threads"),
         // CueMemory has no falls; a repeat of 0 frames is meaningless.
         ("train.fall_penalty=-1.0", "train.fall_penalty"),
         ("train.action_repeat=0", "train.action_repeat"),

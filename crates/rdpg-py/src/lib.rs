@@ -69,11 +69,10 @@ fn make(id: &str, opts: &EnvOptions) -> PyResult<Box<dyn AnyEnv>> {
 
 /// `f32`s from little-endian bytes, exactly `n` of them.
 fn f32s(bytes: &[u8], n: usize, what: &str) -> PyResult<Vec<f32>> {
-    if bytes.len() != 4 * n {
+    if n.checked_mul(4) != Some(bytes.len()) {
         return Err(value_err(format!(
-            "{what}: {} bytes, expected {n} float32 values ({} bytes)",
+            "{what}: {} bytes, expected {n} float32 values",
             bytes.len(),
-            4 * n
         )));
     }
     Ok(bytes
@@ -323,8 +322,9 @@ impl VecEnv {
 /// `Policy(path, checkpoint="best")`.
 #[pyclass(module = "rdpg._rdpg", unsendable)]
 pub struct Policy {
-    /// The agent's directory.
-    agent: PathBuf,
+    /// A private copy of the agent's directory, which every copy of the batched form loads:
+    /// all are the same agent even while a running `rdpg train` replaces the run's own.
+    agent: AgentSnapshot,
     algo: Algo,
     train: TrainConfig,
     /// One copy per environment of the batched form (each keeps its own recurrent state).
@@ -360,11 +360,56 @@ impl Policy {
 
     fn ensure_copies(&mut self, n: usize) -> PyResult<()> {
         while self.copies.len() < n {
-            let p = rdpg_agents::load_policy(self.algo, &self.agent).map_err(value_err)?;
+            let p = rdpg_agents::load_policy(self.algo, &self.agent.0).map_err(value_err)?;
             self.copies.push(p);
             self.prev.push(vec![0.0; self.act_low.len()]);
         }
         Ok(())
+    }
+}
+
+/// A private copy of an agent directory in the temporary directory, removed on drop.
+struct AgentSnapshot(PathBuf);
+
+impl Drop for AgentSnapshot {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+impl AgentSnapshot {
+    /// Copies the agent directory `src` (its files and their manifest) and loads the copy; a
+    /// copy torn by a run saving a new agent meanwhile fails its checksums and is taken again.
+    fn take(algo: Algo, src: &Path) -> PyResult<(AgentSnapshot, Box<dyn DeterministicPolicy>)> {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        for _ in 0..5 {
+            let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let snap = AgentSnapshot(
+                std::env::temp_dir().join(format!("rdpg-policy-{}-{n}", std::process::id())),
+            );
+            let copied = std::fs::create_dir_all(&snap.0).and_then(|()| {
+                for f in std::fs::read_dir(src)? {
+                    let f = f?;
+                    if f.file_type()?.is_file() {
+                        std::fs::copy(f.path(), snap.0.join(f.file_name()))?;
+                    }
+                }
+                Ok(())
+            });
+            if copied.is_ok() {
+                if let Ok(p) = rdpg_agents::load_policy(algo, &snap.0) {
+                    return Ok((snap, p));
+                }
+            }
+        }
+        // Not a race: the agent itself does not load, and its own error names its files.
+        match rdpg_agents::load_policy(algo, src) {
+            Err(e) => Err(value_err(e)),
+            Ok(_) => Err(value_err(format!(
+                "{} kept changing while it was copied (a run is saving new agents): try again",
+                src.display()
+            ))),
+        }
     }
 }
 
@@ -441,19 +486,20 @@ impl Policy {
             .ok_or_else(|| bad(&"no [train] section"))?
             .try_into()
             .map_err(|e| bad(&e))?;
+        train.validate().map_err(|e| bad(&e))?;
         let env = make(&train.env, &EnvOptions::default())?;
-        let mut p = Self {
+        let (agent, first) = AgentSnapshot::take(algo, &agent_dir(&path, checkpoint)?)?;
+        let act_dim = env.action_space().dim();
+        Ok(Self {
             obs_dim: env.observation_space().dim(),
             act_low: env.action_space().low.clone(),
             act_high: env.action_space().high.clone(),
-            agent: agent_dir(&path, checkpoint)?,
+            agent,
             algo,
             train,
-            copies: Vec::new(),
-            prev: Vec::new(),
-        };
-        p.ensure_copies(1)?;
-        Ok(p)
+            copies: vec![first],
+            prev: vec![vec![0.0; act_dim]],
+        })
     }
 
     /// The environment id the agent was trained on.
@@ -496,7 +542,10 @@ impl Policy {
         obs: &[u8],
         n: usize,
     ) -> PyResult<Bound<'py, PyBytes>> {
-        let all = f32s(obs, n * self.obs_dim, "observations")?;
+        let values = n
+            .checked_mul(self.obs_dim)
+            .ok_or_else(|| value_err(format!("act_batch: {n} environments is too many")))?;
+        let all = f32s(obs, values, "observations")?;
         self.ensure_copies(n)?;
         let mut out = Vec::with_capacity(n * self.act_low.len());
         for (i, row) in all.chunks_exact(self.obs_dim).enumerate() {
@@ -505,12 +554,13 @@ impl Policy {
         Ok(f32_bytes(py, &out))
     }
 
-    /// Zeroes the recurrent state of environment `i` of the batched form (its episode ended).
-    fn reset_one(&mut self, i: usize) -> PyResult<()> {
-        self.ensure_copies(i + 1)?;
-        self.copies[i].begin_episode();
-        self.prev[i].fill(0.0);
-        Ok(())
+    /// Zeroes the recurrent state of environment `i` of the batched form (its episode ended);
+    /// an environment the batched form has not acted for yet starts fresh anyway.
+    fn reset_one(&mut self, i: usize) {
+        if let (Some(c), Some(prev)) = (self.copies.get_mut(i), self.prev.get_mut(i)) {
+            c.begin_episode();
+            prev.fill(0.0);
+        }
     }
 }
 

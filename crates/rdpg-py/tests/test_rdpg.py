@@ -319,3 +319,33 @@ def test_a_policy_loads_any_agent_of_a_run(trained_run):
     if zoo.is_dir():
         with pytest.raises(ValueError, match="zoo entry"):
             rdpg.Policy.load(zoo, checkpoint="latest")
+
+
+def test_every_copy_of_a_batched_policy_is_the_agent_it_loaded(trained_run, tmp_path):
+    # A Policy acts from its own copy of the agent: copies made later for more environments
+    # are the same agent even when the run's checkpoint changes (here: is gone) meanwhile, and
+    # the copy is removed with the Policy.
+    import gc
+    import tempfile
+
+    def snapshots():
+        return set(Path(tempfile.gettempdir()).glob(f"rdpg-policy-{os.getpid()}-*"))
+
+    before = snapshots()
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run)
+    batched = rdpg.Policy.load(run)
+    lone = rdpg.Policy.load(run)
+    assert len(snapshots() - before) == 2
+    shutil.rmtree(run)
+    obs = np.zeros((3,) + batched.observation_space.shape, np.float32)
+    a = batched.act_batch(obs)
+    lone.reset()
+    assert np.array_equal(a[2], lone.act(obs[2]))
+    # An environment the batched form has not acted for starts fresh: no copy is made.
+    batched.reset_one(10**6)
+    with pytest.raises(ValueError):
+        batched._p.act_batch(b"", 2**62)
+    del batched, lone
+    gc.collect()
+    assert snapshots() == before

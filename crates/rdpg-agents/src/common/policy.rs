@@ -25,6 +25,24 @@ pub fn check_action_finite(a: Vec<f32>, what: &str) -> Result<Vec<f32>> {
     Ok(a)
 }
 
+/// The seeds of `episodes` episodes from `seed` on (`seed`, `seed + 1`, ...), or an error when
+/// they would run past the largest seed.
+pub fn episode_seeds(seed: u64, episodes: usize) -> Result<impl Iterator<Item = u64>> {
+    let ok = (episodes as u64)
+        .checked_sub(1)
+        .is_none_or(|k| seed.checked_add(k).is_some());
+    if !ok {
+        return Err(AgentError::Input(format!(
+            "{episodes} episodes from seed {seed} run past the largest seed ({})",
+            u64::MAX
+        )));
+    }
+    Ok((0..episodes as u64).map(move |k| seed + k))
+}
+
+/// Room for at most this many per-episode results up front (the counts come from the user).
+pub(crate) const PREALLOCATED_EPISODES: usize = 4096;
+
 /// Maps an action in the agent's `[-1, 1]` space to the env's bounds (clipping first).
 pub fn to_env_action(a: &[f32], low: &[f32], high: &[f32]) -> Vec<f32> {
     a.iter()
@@ -72,12 +90,11 @@ pub fn evaluate_policy_traced(
 ) -> Result<EvalRecord> {
     let mut env = rdpg_envs::make_with(&cfg.env, &cfg.eval_env_options())?;
     let space = env.action_space().clone();
-    let mut returns = Vec::with_capacity(episodes);
-    let mut lengths = Vec::with_capacity(episodes);
+    let mut returns = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
+    let mut lengths = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
     let (mut successes, mut time_limits) = (0, 0);
     let mut actions = Vec::new();
-    for k in 0..episodes {
-        let ep_seed = seed + k as u64;
+    for ep_seed in episode_seeds(seed, episodes)? {
         let (mut obs, _) = env.reset(Some(ep_seed))?;
         policy.begin_episode();
         actions.clear();

@@ -167,7 +167,7 @@ impl PpoAgent {
             )));
         }
         if let Some(n) = cfg.num_threads {
-            tch::set_num_threads(n as i32);
+            crate::set_num_threads(n);
         }
         let device = resolve_device(cfg.device)?;
         let vs = VarStore::new(device);

@@ -129,8 +129,14 @@ impl PpoConfig {
                 return bad("ppo.grad_clip", format!("{c} is not a positive number"));
             }
         }
-        if self.num_threads == Some(0) {
-            return bad("ppo.num_threads", "must be at least 1".into());
+        if self
+            .num_threads
+            .is_some_and(|n| n == 0 || n > crate::MAX_THREADS)
+        {
+            return bad(
+                "ppo.num_threads",
+                format!("must be 1 to {} when given", crate::MAX_THREADS),
+            );
         }
         Ok(())
     }

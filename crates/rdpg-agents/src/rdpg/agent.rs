@@ -192,7 +192,7 @@ impl RdpgAgent {
             });
         }
         if let Some(n) = cfg.num_threads {
-            tch::set_num_threads(n as i32);
+            crate::set_num_threads(n);
         }
         let device = resolve_device(cfg.device)?;
         let (d, a) = (obs_dim as i64, act_dim as i64);

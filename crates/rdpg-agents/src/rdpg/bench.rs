@@ -193,6 +193,7 @@ pub fn bench_update_on_run(
     iters: usize,
     rounds: usize,
 ) -> Result<(u64, Vec<ModeResult>)> {
+    crate::common::checkpoint::verify(checkpoint)?;
     let mut trainer = OffPolicyTrainer::load(checkpoint)?;
     let c = trainer.agent().config().clone();
     let (b, s, l) = (c.batch_size, c.scan_len, c.opt_len);

@@ -408,8 +408,14 @@ impl RdpgConfig {
                 "needs twin_critic = true, target networks (tau > 0) and critic_target = \"tail_bootstrap\"",
             ));
         }
-        if self.num_threads == Some(0) {
-            return Err(bad("num_threads", "must be at least 1 when given"));
+        if self
+            .num_threads
+            .is_some_and(|n| n == 0 || n > crate::MAX_THREADS)
+        {
+            return Err(bad(
+                "num_threads",
+                format!("must be 1 to {} when given", crate::MAX_THREADS),
+            ));
         }
         if let Some(f) = &self.fork {
             if self.recurrent {

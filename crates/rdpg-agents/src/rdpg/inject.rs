@@ -13,6 +13,7 @@ use rdpg_envs::{EnvOptions, WalkerReward};
 use serde::{Deserialize, Serialize};
 
 use crate::common::checkpoint::{read_bin, write_bin};
+use crate::common::policy::{episode_seeds, PREALLOCATED_EPISODES};
 use crate::common::{to_env_action, DeterministicPolicy, TrainConfig};
 use crate::error::{AgentError, Result};
 
@@ -194,9 +195,9 @@ pub fn record(
     let space = env.action_space().clone();
     let obs_dim = env.observation_space().dim();
     let mut rng = rdpg_core::rng::NpRng::from_seed(seed ^ 0x7EAC_4E25);
-    let mut out = Vec::with_capacity(episodes);
-    for k in 0..episodes {
-        let (mut obs, _) = env.reset(Some(seed + k as u64))?;
+    let mut out = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
+    for ep_seed in episode_seeds(seed, episodes)? {
+        let (mut obs, _) = env.reset(Some(ep_seed))?;
         policy.begin_episode();
         let mut ep = Episode {
             obs: obs.clone(),

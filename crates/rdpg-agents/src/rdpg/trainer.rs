@@ -208,6 +208,18 @@ impl OffPolicyTrainer {
                 "the agent's observation/action sizes do not match the environment",
             ));
         }
+        let rc = replay.config();
+        let stored = if agent.config().burn_in_from_stored_state {
+            agent.state_dim()
+        } else {
+            0
+        };
+        if (rc.obs_dim, rc.act_dim, rc.state_dim) != (agent.obs_dim(), agent.act_dim(), stored) {
+            return Err(ckpt_err(
+                &dir.join("replay.bin"),
+                "the replay's observation/action/state sizes do not match the agent",
+            ));
+        }
         if st.param_noise.is_some() != off.param_noise.is_some() {
             return Err(AgentError::Checkpoint(
                 "parameter noise state does not match the config".into(),
