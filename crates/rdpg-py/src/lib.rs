@@ -488,10 +488,27 @@ impl Policy {
             .map_err(|e| bad(&e))?;
         train.validate().map_err(|e| bad(&e))?;
         let env = make(&train.env, &EnvOptions::default())?;
-        let (agent, first) = AgentSnapshot::take(algo, &agent_dir(&path, checkpoint)?)?;
-        let act_dim = env.action_space().dim();
+        let (agent, mut first) = AgentSnapshot::take(algo, &agent_dir(&path, checkpoint)?)?;
+        let (obs_dim, act_dim) = (env.observation_space().dim(), env.action_space().dim());
+        // The agent must fit what the config says it saw: one probe action on zeros.
+        let seen = (0..obs_dim).filter(|k| !train.hide_obs.contains(k)).count()
+            + if train.prev_action_obs { act_dim } else { 0 };
+        let probe = first.act(&vec![0.0; seen]).map_err(|e| {
+            bad(&format!(
+                "the agent does not fit {} as configured ({seen} inputs): {e}",
+                train.env
+            ))
+        })?;
+        if probe.len() != act_dim {
+            return Err(bad(&format!(
+                "the agent gives {} action values, {} takes {act_dim}",
+                probe.len(),
+                train.env
+            )));
+        }
+        first.begin_episode();
         Ok(Self {
-            obs_dim: env.observation_space().dim(),
+            obs_dim,
             act_low: env.action_space().low.clone(),
             act_high: env.action_space().high.clone(),
             agent,

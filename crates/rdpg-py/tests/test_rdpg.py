@@ -349,3 +349,14 @@ def test_every_copy_of_a_batched_policy_is_the_agent_it_loaded(trained_run, tmp_
     del batched, lone
     gc.collect()
     assert snapshots() == before
+
+
+def test_a_policy_whose_config_does_not_fit_its_agent_is_refused(trained_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run)
+    config = run / "config.toml"
+    text = config.read_text()
+    assert 'env = "CueMemory-v0"' in text
+    config.write_text(text.replace('env = "CueMemory-v0"', 'env = "Pendulum-v1"'))
+    with pytest.raises(ValueError, match="does not fit Pendulum-v1"):
+        rdpg.Policy.load(run)
