@@ -202,7 +202,52 @@ struct UpdateBenchLine {
     threads: usize,
     #[serde(flatten)]
     ms: PhaseMs,
+    #[serde(flatten)]
+    flop: PhaseFlop,
     updates_per_sec: f64,
+    /// Milliseconds per update (all phases).
+    ms_per_update: f64,
+    /// Counted GFLOP per update and the rate achieved over the update.
+    gflop: f64,
+    gflops: f64,
+    /// GFLOP/s of plain matrix products at the networks' layer shapes (same run), and the
+    /// milliseconds the update's counted FLOP would take at that rate.
+    gemm_ref_gflops: f64,
+    ms_at_gemm_ref: f64,
+}
+
+/// Counted GFLOP per update in each phase, and GFLOP/s achieved in it
+/// (`rdpg_agents::rdpg::flops`).
+#[derive(Serialize)]
+struct PhaseFlop {
+    gflop_scan: f64,
+    gflop_window_nograd: f64,
+    gflop_critic_step: f64,
+    gflop_critic_rescan: f64,
+    gflop_actor_step: f64,
+    gflops_scan: f64,
+    gflops_window_nograd: f64,
+    gflops_critic_step: f64,
+    gflops_critic_rescan: f64,
+    gflops_actor_step: f64,
+}
+
+impl PhaseFlop {
+    fn new(f: &rdpg_agents::rdpg::flops::PhaseFlops, t: &rdpg_agents::rdpg::PhaseTimes) -> Self {
+        let rate = |flop: f64, secs: f64| if secs > 0.0 { flop / secs / 1e9 } else { 0.0 };
+        Self {
+            gflop_scan: f.scan / 1e9,
+            gflop_window_nograd: f.window_nograd / 1e9,
+            gflop_critic_step: f.critic_step / 1e9,
+            gflop_critic_rescan: f.critic_rescan / 1e9,
+            gflop_actor_step: f.actor_step / 1e9,
+            gflops_scan: rate(f.scan, t.scan),
+            gflops_window_nograd: rate(f.window_nograd, t.window_nograd),
+            gflops_critic_step: rate(f.critic_step, t.critic_step),
+            gflops_critic_rescan: rate(f.critic_rescan, t.critic_rescan),
+            gflops_actor_step: rate(f.actor_step, t.actor_step),
+        }
+    }
 }
 
 /// Milliseconds per update in each phase of the update.
@@ -330,7 +375,13 @@ fn bench_update(a: &UpdateBenchArgs) -> Result<()> {
         iters: a.iters,
         threads: a.threads,
         ms: r.per_update.into(),
+        flop: PhaseFlop::new(&r.flops, &r.per_update),
         updates_per_sec: r.updates_per_sec,
+        ms_per_update: 1e3 / r.updates_per_sec,
+        gflop: r.flops.total() / 1e9,
+        gflops: r.flops.total() * r.updates_per_sec / 1e9,
+        gemm_ref_gflops: r.gemm_flops_per_sec / 1e9,
+        ms_at_gemm_ref: r.flops.total() / r.gemm_flops_per_sec * 1e3,
     };
     println!("{}", serde_json::to_string(&line)?);
     Ok(())

@@ -21,8 +21,9 @@ pub struct UpdateStats {
     /// surrogate, negated); `None` when this update did not train the actor (TD3's
     /// `policy_delay`).
     pub actor_loss: Option<f64>,
-    /// Mean value estimate (RDPG: `Q(o_i, a_i)` of the first critic over real steps; PPO: the
-    /// mean value prediction).
+    /// Mean value estimate (RDPG: `Q(o_i, a_i)` of the first critic over the steps its loss
+    /// trains, the real ones among each window's first `update_len`; PPO: the mean value
+    /// prediction).
     pub q_mean: f64,
     /// Share of the batch's windows drawn from injected (teacher) episodes (0 without
     /// injection and for on-policy learners).

@@ -11,7 +11,7 @@ use tch::{Device, Kind, Tensor};
 use super::config::RdpgConfig;
 use super::lstm::RecState;
 use super::nets::{Actor, Critic};
-use super::update::PhaseTimes;
+use super::profile::PhaseTimes;
 use crate::common::adam::{Adam, AdamConfig};
 use crate::common::tensor::{
     init_from_rng, resolve_device, sorted_vars, tensor_to_vec, tensor_to_vec64,

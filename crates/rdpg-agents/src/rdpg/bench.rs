@@ -10,8 +10,9 @@ use serde::{Deserialize, Serialize};
 
 use super::agent::RdpgAgent;
 use super::config::RdpgConfig;
+use super::flops::{gemm_reference, update_flops, PhaseFlops};
+use super::profile::PhaseTimes;
 use super::trainer::OffPolicyTrainer;
-use super::update::PhaseTimes;
 use crate::error::{AgentError, Result};
 
 /// A random but well-formed batch: `n` windows of `scan + opt` steps, observations of size
@@ -88,6 +89,11 @@ pub struct BenchResult {
     pub updates_per_sec: f64,
     /// Seconds per update spent in each phase (averaged; CPU timings).
     pub per_update: PhaseTimes,
+    /// Counted FLOP per update in each phase ([`super::flops`]).
+    pub flops: PhaseFlops,
+    /// FLOP per second of plain matrix products at the networks' layer shapes, measured in
+    /// the same run right after the updates, on the same thread settings (CPU).
+    pub gemm_flops_per_sec: f64,
 }
 
 /// Times `iters` updates (after 3 warm-up updates) of an agent built from `cfg` on synthetic
@@ -131,28 +137,13 @@ pub fn bench_update_with(
         agent.update(&batches[i % batches.len()]);
     }
     let secs = t0.elapsed().as_secs_f64();
+    let rows = ((cfg.batch_size * cfg.opt_len) as i64, cfg.batch_size as i64);
     Ok(BenchResult {
         updates_per_sec: iters as f64 / secs,
-        per_update: per_update(agent.profile().unwrap_or_default()),
+        per_update: agent.profile().unwrap_or_default().per_update(),
+        flops: update_flops(cfg, obs_dim, act_dim),
+        gemm_flops_per_sec: gemm_reference(cfg, obs_dim, act_dim, rows, 1.0),
     })
-}
-
-/// Phase totals divided by the number of updates they cover.
-fn per_update(mut p: PhaseTimes) -> PhaseTimes {
-    let k = p.updates.max(1) as f64;
-    for v in [
-        &mut p.prepare,
-        &mut p.scan,
-        &mut p.window_nograd,
-        &mut p.critic_step,
-        &mut p.models,
-        &mut p.critic_rescan,
-        &mut p.actor_step,
-        &mut p.other,
-    ] {
-        *v /= k;
-    }
-    p
 }
 
 /// How an update uses the CPU: what [`bench_update_on_run`] compares.
@@ -248,7 +239,7 @@ pub fn bench_update_on_run(
         .map(|(&mode, (secs, p))| ModeResult {
             mode,
             updates_per_sec: p.updates as f64 / secs.max(1e-12),
-            per_update: per_update(p),
+            per_update: p.per_update(),
         })
         .collect();
     Ok((updates_before, out))

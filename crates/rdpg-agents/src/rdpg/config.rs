@@ -34,9 +34,9 @@ pub enum Trunk {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ScanMethod {
-    /// Windows with a full scan run the fused LSTM kernel in one call (the only call when every
-    /// window has a full scan, the common case); the few shorter ones (near an episode start)
-    /// run the masked cell loop of `MaskedLoop` as a sub-batch. The default.
+    /// Windows grouped by their scan length, each group one call of the fused LSTM kernel
+    /// over its real steps (one call in all when every window has a full scan, the common
+    /// case; a few more for the shorter scans of windows near an episode start). The default.
     Grouped,
     /// One LSTM cell step per scan step over the whole batch; the state of windows still in
     /// their padding is kept with a mask (`where`). Competitive when most windows are short

@@ -147,6 +147,36 @@ impl Lstm {
         (out, RecState { h, c })
     }
 
+    /// `steps` LSTM steps over `x [B, >= steps, in]` from `(h, c)` (`[B, H]` each), for runs
+    /// without gradient that need the state at every step: the input projection
+    /// `x W_ih^T + b_ih + b_hh` of all steps in one matrix product, then per step one
+    /// `h W_hh^T` and the gate arithmetic (gate order i, f, g, o). Returns the states after
+    /// each step, `(h_t, c_t)`. The same function as [`Lstm::cell`] step after step, with the
+    /// sums in another order (equal to float rounding).
+    fn cells(&self, x: &Tensor, h: &Tensor, c: &Tensor, steps: i64) -> Vec<(Tensor, Tensor)> {
+        let hd = self.hidden;
+        let (b, d) = (x.size()[0], x.size()[2]);
+        let x = x.narrow(1, 0, steps);
+        // [B * steps, in] @ [in, 4H] + (b_ih + b_hh) -> [B, steps, 4H]
+        let xw = (&self.b_ih + &self.b_hh)
+            .addmm(&x.reshape([b * steps, d]), &self.w_ih.tr())
+            .view([b, steps, 4 * hd]);
+        let w_hh = self.w_hh.tr(); // [H, 4H]
+        let (mut h, mut c) = (h.shallow_clone(), c.shallow_clone());
+        let mut out = Vec::with_capacity(steps as usize);
+        for t in 0..steps {
+            let g = xw.select(1, t).addmm(&h, &w_hh); // [B, 4H]
+            let i_f = g.narrow(1, 0, 2 * hd).sigmoid();
+            let (i, f) = (i_f.narrow(1, 0, hd), i_f.narrow(1, hd, hd));
+            let gg = g.narrow(1, 2 * hd, hd).tanh();
+            let o = g.narrow(1, 3 * hd, hd).sigmoid();
+            c = (f * &c).addcmul(&i, &gg);
+            h = o * c.tanh();
+            out.push((h.shallow_clone(), c.shallow_clone()));
+        }
+        out
+    }
+
     /// One step with libtorch's `lstm_cell` (composite matmuls + element-wise ops): `x [N, in]`,
     /// `h`, `c` `[N, H]` -> next `(h, c)`. For single steps this beats the fused sequence
     /// kernel, and autograd only computes the gradients actually needed (e.g. none for a
@@ -245,36 +275,62 @@ impl Core {
     }
 
     /// Like [`Core::seq`], one step at a time, also returning the state *before* each step:
-    /// `(out [B, T, H], h_before [B, T, Hs], c_before [B, T, Hs], final state)`. Used (without
-    /// gradient) to get the carried states the per-step actor gradient treats as constants.
+    /// `(out [B, T, H], h_before [B, T, Hs], c_before [B, T, Hs], final state)`. For runs
+    /// without gradient that need the carried states (the per-step actor gradient treats them
+    /// as constants; the per-step TD(0) targets continue from them).
     pub fn stepwise(&self, x: &Tensor, s: &RecState) -> (Tensor, Tensor, Tensor, RecState) {
         let t_len = x.size()[1];
-        let (mut h, mut c) = (s.h.squeeze_dim(0), s.c.squeeze_dim(0)); // [B, Hs]
-        let mut outs = Vec::with_capacity(t_len as usize);
-        let mut hs = Vec::with_capacity(t_len as usize);
-        let mut cs = Vec::with_capacity(t_len as usize);
-        for t in 0..t_len {
-            hs.push(h.shallow_clone());
-            cs.push(c.shallow_clone());
-            let xt = x.select(1, t);
-            match self {
-                Core::Lstm(l) => {
-                    (h, c) = l.cell(&xt, &h, &c);
-                    outs.push(h.shallow_clone());
-                }
-                Core::Ff(fc, _) => outs.push(fc.forward(&xt).relu()),
+        match self {
+            Core::Lstm(l) => {
+                let (h0, c0) = (s.h.squeeze_dim(0), s.c.squeeze_dim(0)); // [B, H]
+                let after = l.cells(x, &h0, &c0, t_len);
+                let hs: Vec<&Tensor> = after.iter().map(|(h, _)| h).collect();
+                let cs: Vec<&Tensor> = after.iter().map(|(_, c)| c).collect();
+                let out = Tensor::stack(&hs, 1); // [B, T, H]
+                let before = |first: &Tensor, rest: &[&Tensor]| {
+                    let mut v = vec![first];
+                    v.extend_from_slice(&rest[..rest.len() - 1]);
+                    Tensor::stack(&v, 1)
+                };
+                let (hb, cb) = (before(&h0, &hs), before(&c0, &cs));
+                let (hf, cf) = after.last().expect("at least one step");
+                let fin = RecState {
+                    h: hf.unsqueeze(0),
+                    c: cf.unsqueeze(0),
+                };
+                (out, hb, cb, fin)
+            }
+            Core::Ff(fc, _) => {
+                let z =
+                    s.h.squeeze_dim(0)
+                        .unsqueeze(1)
+                        .expand([-1, t_len, -1], false);
+                (fc.forward(x).relu(), z.copy(), z.copy(), s.shallow_clone())
             }
         }
-        let fin = RecState {
-            h: h.unsqueeze(0),
-            c: c.unsqueeze(0),
-        };
-        (
-            Tensor::stack(&outs, 1),
-            Tensor::stack(&hs, 1),
-            Tensor::stack(&cs, 1),
-            fin,
-        )
+    }
+
+    /// The states before each of the `T` steps of `x [B, T, in]` from `s`, `(h, c)` each
+    /// `[B, T, Hs]` (no gradient; `T - 1` steps computed). Feed-forward cores: zero-width.
+    pub fn states_before(&self, x: &Tensor, s: &RecState) -> (Tensor, Tensor) {
+        let t_len = x.size()[1];
+        let (h0, c0) = (s.h.squeeze_dim(0), s.c.squeeze_dim(0)); // [B, Hs]
+        match self {
+            Core::Lstm(l) => {
+                let after = l.cells(x, &h0, &c0, t_len - 1);
+                let hs: Vec<&Tensor> = std::iter::once(&h0)
+                    .chain(after.iter().map(|(h, _)| h))
+                    .collect();
+                let cs: Vec<&Tensor> = std::iter::once(&c0)
+                    .chain(after.iter().map(|(_, c)| c))
+                    .collect();
+                (Tensor::stack(&hs, 1), Tensor::stack(&cs, 1))
+            }
+            Core::Ff(..) => {
+                let z = h0.unsqueeze(1).expand([-1, t_len, -1], false).copy();
+                (z.shallow_clone(), z)
+            }
+        }
     }
 }
 
@@ -298,36 +354,24 @@ pub fn scan_state(
             if scan_len.iter().all(|&k| k == s) {
                 return core.seq(x, init).1; // the common case: one fused call
             }
+            // Windows grouped by their scan length k: one fused call per group over its last k
+            // (real) steps. Windows with no real scan step keep `init`.
             let (mut h, mut c) = (init.h.copy(), init.c.copy());
-            let pick = |want: &dyn Fn(usize) -> bool| -> Vec<i64> {
-                (0..scan_len.len())
-                    .filter(|&i| want(scan_len[i]))
+            let mut lengths: Vec<usize> = scan_len.iter().copied().filter(|&k| k > 0).collect();
+            lengths.sort_unstable();
+            lengths.dedup();
+            for k in lengths {
+                let group: Vec<i64> = (0..scan_len.len())
+                    .filter(|&i| scan_len[i] == k)
                     .map(|i| i as i64)
-                    .collect()
-            };
-            // Full scans: one fused call over all s steps.
-            let full = pick(&|k| k == s);
-            if !full.is_empty() {
-                let it = Tensor::from_slice(&full).to_device(x.device());
+                    .collect();
+                let it = Tensor::from_slice(&group).to_device(x.device());
                 let st0 = RecState {
                     h: init.h.index_select(1, &it),
                     c: init.c.index_select(1, &it),
                 };
-                let (_, st) = core.seq(&x.index_select(0, &it), &st0);
-                h = h.index_copy(1, &it, &st.h);
-                c = c.index_copy(1, &it, &st.c);
-            }
-            // Shorter scans (windows near an episode start): masked cell loop on that subset.
-            // Windows with no real scan step keep `init`.
-            let short = pick(&|k| 0 < k && k < s);
-            if !short.is_empty() {
-                let it = Tensor::from_slice(&short).to_device(x.device());
-                let ks: Vec<usize> = short.iter().map(|&i| scan_len[i as usize]).collect();
-                let st0 = RecState {
-                    h: init.h.index_select(1, &it),
-                    c: init.c.index_select(1, &it),
-                };
-                let st = masked_cell_loop(core, &x.index_select(0, &it), &ks, &st0);
+                let xk = x.index_select(0, &it).narrow(1, (s - k) as i64, k as i64);
+                let (_, st) = core.seq(&xk, &st0);
                 h = h.index_copy(1, &it, &st.h);
                 c = c.index_copy(1, &it, &st.c);
             }
@@ -389,5 +433,39 @@ mod tests {
         assert!(cb
             .select(1, 0)
             .allclose(&h0.c.squeeze_dim(0), 0.0, 0.0, false));
+    }
+
+    /// The no-gradient runs (`stepwise`, `states_before`: input projection hoisted out of the
+    /// loop, gate arithmetic by hand) equal libtorch's `lstm_cell` step after step to rounding
+    /// (f64: 1e-12), and so does `states_before` (`stepwise`'s states before each step).
+    #[test]
+    fn hoisted_cells_equal_lstm_cell_steps() {
+        tch::manual_seed(2);
+        let mut vs = nn::VarStore::new(Device::Cpu);
+        let l = Lstm::new(&vs.root(), 5, 6);
+        vs.double();
+        let opts = (Kind::Double, Device::Cpu);
+        let x = Tensor::randn([3, 7, 5], opts);
+        let s = RecState {
+            h: Tensor::randn([1, 3, 6], opts),
+            c: Tensor::randn([1, 3, 6], opts),
+        };
+        let (mut h, mut c) = (s.h.squeeze_dim(0), s.c.squeeze_dim(0));
+        let (mut outs, mut hs, mut cs) = (vec![], vec![], vec![]);
+        for t in 0..7 {
+            hs.push(h.shallow_clone());
+            cs.push(c.shallow_clone());
+            (h, c) = l.cell(&x.select(1, t), &h, &c);
+            outs.push(h.shallow_clone());
+        }
+        let core = Core::Lstm(l);
+        let (out, hb, cb, fin) = tch::no_grad(|| core.stepwise(&x, &s));
+        let close = |a: &Tensor, b: &Tensor| a.allclose(b, 1e-12, 1e-12, false);
+        assert!(close(&out, &Tensor::stack(&outs, 1)));
+        assert!(close(&hb, &Tensor::stack(&hs, 1)));
+        assert!(close(&cb, &Tensor::stack(&cs, 1)));
+        assert!(close(&fin.c.squeeze_dim(0), &c));
+        let (hb2, cb2) = tch::no_grad(|| core.states_before(&x, &s));
+        assert!(close(&hb2, &hb) && close(&cb2, &cb));
     }
 }

@@ -6,22 +6,29 @@
 //! * [`lstm`]: the recurrent core and the no-gradient scan it drives; [`nets`]: trunks, actor
 //!   and critic.
 //! * [`agent`]: [`RdpgAgent`], acting with the trained actor or its exploring copy.
-//! * [`update`]: Algorithm 1's `Update()`, top to bottom; [`fork`]: FORK's models and
-//!   forward-looking actor term (feed-forward agents); [`checkpoint`]: save and load.
+//! * [`update`]: Algorithm 1's `Update()`, top to bottom (its two-thread schedule in
+//!   `twins.rs`, the batch it reads in `prepared.rs`); [`profile`]: its per-phase times;
+//!   [`fork`]: FORK's models and forward-looking actor term (feed-forward agents);
+//!   [`checkpoint`]: save and load.
 //! * [`trainer`]: [`OffPolicyTrainer`], Algorithm 1's outer loop; [`inject`]: experience
 //!   injection from teacher files.
-//! * [`bench`](mod@bench): synthetic batches and the update benchmark.
+//! * [`bench`](mod@bench): synthetic batches and the update benchmark; [`flops`]: the
+//!   update's counted FLOP and a matrix-product reference at its layer shapes.
 
 pub mod agent;
 pub mod bench;
 pub mod checkpoint;
 pub mod config;
+pub mod flops;
 pub mod fork;
 pub mod inject;
 pub mod lstm;
 pub mod nets;
 pub mod off_policy;
+mod prepared;
+pub mod profile;
 pub mod trainer;
+mod twins;
 pub mod update;
 
 pub use agent::{ActorState, RdpgAgent};
@@ -29,8 +36,8 @@ pub use config::{
     memory_task_config, CriticTarget, ForkConfig, RdpgConfig, ScanMethod, TargetNoise, Trunk,
 };
 pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
+pub use profile::PhaseTimes;
 pub use trainer::{OffPolicyTrainer, RdpgPolicy};
-pub use update::PhaseTimes;
 
 #[cfg(test)]
 mod tests;

@@ -340,13 +340,13 @@ fn scan_with_padding_equals_running_the_window_alone() {
                     b.scan_len[i]
                 );
                 assert_close(
-                    &to_vec64(&sc.actor.h.select(1, idx)),
+                    &to_vec64(&sc.actor().h.select(1, idx)),
                     &to_vec64(&ha.h),
                     tol,
                     &what,
                 );
                 assert_close(
-                    &to_vec64(&sc.actor.c.select(1, idx)),
+                    &to_vec64(&sc.actor().c.select(1, idx)),
                     &to_vec64(&ha.c),
                     tol,
                     &what,
@@ -530,7 +530,7 @@ fn actor_loss_gradient_matches_finite_differences() {
         let loss = |agent: &RdpgAgent| {
             let input = match &states {
                 Some((h, c)) => ActorInput::Detached { h, c },
-                None => ActorInput::Bptt { h0: &sc.actor },
+                None => ActorInput::Bptt { h0: sc.actor() },
             };
             actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs).0
         };
@@ -559,7 +559,7 @@ fn bptt_and_per_step_gradients_differ_but_agree_on_the_first_step() {
         let cs = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
         let input = match &states {
             Some((h, c)) => ActorInput::Detached { h, c },
-            None => ActorInput::Bptt { h0: &sc.actor },
+            None => ActorInput::Bptt { h0: sc.actor() },
         };
         agent.actor_opt.zero_grad();
         actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs)
@@ -853,13 +853,13 @@ fn burn_in_starts_the_actor_scan_from_the_stored_state() {
             })
         };
         assert_close(
-            &to_vec64(&sc.actor.h.select(1, i as i64)),
+            &to_vec64(&sc.actor().h.select(1, i as i64)),
             &to_vec64(&want.h),
             1e-12,
             "h",
         );
         assert_close(
-            &to_vec64(&sc.actor.c.select(1, i as i64)),
+            &to_vec64(&sc.actor().c.select(1, i as i64)),
             &to_vec64(&want.c),
             1e-12,
             "c",
@@ -1513,7 +1513,7 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
         trunk: Trunk::Mlp { hidden: vec![6] },
         recurrent: false,
         critic_action_fc: 0,
-        opt_len: 1,
+        opt_len: 3, // n-step returns for the first step: the critic runs on it alone
         update_len: 1,
         scan_len: 0,
         ..tiny()
@@ -1602,7 +1602,7 @@ fn fork_term_equals_the_reference_formulation() {
     // mu(o_i) as the update hands it over: the actions the actor loss differentiated through.
     let sc = tch::no_grad(|| agent.scan_all(&p));
     let cs = tch::no_grad(|| agent.critic_states(&p, &sc.critics[0]));
-    let input = ActorInput::Bptt { h0: &sc.actor }; // feed-forward: no per-step states
+    let input = ActorInput::Bptt { h0: sc.actor() }; // feed-forward: no per-step states
     let (_, a0) = actor_loss(&agent.actor, &agent.critics[0], &p, input, &cs);
     agent.actor_opt.zero_grad();
     f.dynamics_opt.zero_grad();
@@ -1753,4 +1753,91 @@ fn fork_models_fit_a_batch_and_switch_the_term_on() {
         .unwrap()
         .update(&batch(&tiny(), 4, 0.5, 1));
     assert_eq!((plain.model_loss, plain.fork_term), (None, None));
+}
+
+/// The critic runs only over the steps its loss trains (the first `u` of each window), in
+/// f32, for the feed-forward critic with n-step returns (`l = 3, u = 1`, the Hardcore TD3
+/// recipes) and a recurrent one with `u < l`: its values and TD loss equal those of the whole
+/// window's run (`l` steps, zero weight past `u`) bit for bit, and every critic's gradient to
+/// f32 rounding. (Not bit for bit: a weight's gradient sums over the rows, `N u` here against
+/// `N l` with zero rows there, which the matrix product blocks differently.)
+#[test]
+fn critic_on_trained_steps_equals_the_whole_window() {
+    use super::update::{critic_window, Clock};
+    let ff = RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![16] },
+        recurrent: false,
+        critic_action_fc: 0,
+        actor_hidden: 16,
+        critic_hidden: 16,
+        opt_len: 3,
+        update_len: 1,
+        scan_len: 0,
+        twin_critic: true,
+        tau: 0.05,
+        batch_size: 64,
+        ..tiny()
+    };
+    let rec = RdpgConfig {
+        opt_len: 4,
+        update_len: 2,
+        twin_critic: true,
+        tau: 0.05,
+        ..tiny()
+    };
+    for cfg in [ff, rec] {
+        let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 17).unwrap();
+        let b = batch(&cfg, cfg.batch_size, 0.5, 33);
+        let p = agent.prepare(&b);
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        let (q_sa, y, _) = agent.critic_objective(&p, &sc, &mut Clock::new(false));
+        assert_eq!(q_sa[0].size(), [b.n as i64, cfg.update_len as i64]);
+        let grads = |agent: &RdpgAgent| -> Vec<Vec<f64>> {
+            agent
+                .critic_vs
+                .iter()
+                .flat_map(sorted_vars)
+                .map(|(_, v)| to_vec64(&v.grad()))
+                .collect()
+        };
+        let sum = |qs: &[Tensor]| {
+            qs.iter()
+                .map(|q| critic_loss_from(&p, q, &y))
+                .reduce(|a, b| a + b)
+                .unwrap()
+        };
+        agent.critic_opt.zero_grad();
+        let loss = sum(&q_sa);
+        loss.backward();
+        let (loss, g) = (loss.double_value(&[]), grads(&agent));
+        let whole: Vec<Tensor> = agent
+            .critics
+            .iter()
+            .zip(&sc.critics)
+            .map(|(c, h)| critic_window(c, &p, h, None)) // [N, l]
+            .collect();
+        agent.critic_opt.zero_grad();
+        let loss_ref = sum(&whole);
+        loss_ref.backward();
+        let u = cfg.update_len as i64;
+        assert!(whole[0].narrow(1, 0, u).equal(&q_sa[0]));
+        assert_eq!(
+            loss,
+            loss_ref.double_value(&[]),
+            "recurrent {}",
+            cfg.recurrent
+        );
+        for (k, (a, b)) in g.iter().zip(grads(&agent)).enumerate() {
+            let scale = b.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            let worst = a
+                .iter()
+                .zip(&b)
+                .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+            assert!(
+                worst <= 1e-6 * scale,
+                "recurrent {}: parameter {k}: {worst:e} off at scale {scale:e}",
+                cfg.recurrent
+            );
+        }
+    }
 }

@@ -41,89 +41,40 @@
 //! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
 //! critic steps every time.
 //!
-//! With `parallel_twins` steps 1 and 2 run the second critic's share (its scan and its
-//! target's, the target actor's scan, the behaviour actor's states, target critic 1's value,
-//! critic 1's forward and backward pass) on a second thread, with the same arithmetic
-//! (`twin_critic_gradients`), and critic 1's Adam step and its target's soft update run there
-//! while this thread takes critic 0's step and the actor's: the result is bit-identical.
+//! With `parallel_twins` the same update runs on two threads (`twins.rs`): the second critic's
+//! share of steps 1 and 2 (its scan and its target's, the target actor's scan, the behaviour
+//! actor's states, target critic 1's value, critic 1's forward and backward pass), critic 1's
+//! Adam step and its target's soft update run on a second thread, with the same arithmetic:
+//! the result is bit-identical. The batch as the update reads it is built in `prepared.rs`,
+//! the per-phase stopwatch in `profile.rs`.
 
 use std::time::Instant;
 
-use rdpg_core::targets::interpolated_td_weights_padded;
 use rdpg_core::SequenceBatch;
-use serde::{Deserialize, Serialize};
 use tch::Tensor;
 
 use super::agent::RdpgAgent;
 use super::config::{CriticTarget, ScanMethod};
+use super::fork::ModelStep;
 use super::lstm::{scan_state, RecState};
 use super::nets::{Actor, Critic};
-use crate::common::side_thread::SideThread;
+pub(super) use super::prepared::Prepared;
+pub(super) use super::profile::Clock;
 use crate::common::UpdateStats;
 
-/// Wall-clock seconds spent in each phase of the updates since profiling was switched on
-/// (meaningful on the CPU, where libtorch runs synchronously).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct PhaseTimes {
-    /// Updates measured.
-    pub updates: u64,
-    /// Batch upload and index tensors.
-    pub prepare: f64,
-    /// The no-gradient scans of step 1 (all networks, target networks included).
-    pub scan: f64,
-    /// No-gradient runs along the window: tail action, actor states, target critics.
-    pub window_nograd: f64,
-    /// Critic forward with gradient, backward, clipping and Adam step.
-    pub critic_step: f64,
-    /// FORK's model steps (0 without FORK).
-    #[serde(default)]
-    pub models: f64,
-    /// The critic rescan and state run after its step (`actor_uses_updated_critic`).
-    pub critic_rescan: f64,
-    /// Actor forward, backward and Adam step.
-    pub actor_step: f64,
-    /// Soft target update and statistics.
-    pub other: f64,
-}
-
-impl PhaseTimes {
-    /// Adds `o`'s updates and phase times to these.
-    pub fn add(&mut self, o: &PhaseTimes) {
-        self.updates += o.updates;
-        self.prepare += o.prepare;
-        self.scan += o.scan;
-        self.window_nograd += o.window_nograd;
-        self.critic_step += o.critic_step;
-        self.models += o.models;
-        self.critic_rescan += o.critic_rescan;
-        self.actor_step += o.actor_step;
-        self.other += o.other;
-    }
-
-    /// Seconds in all phases together.
-    pub fn total(&self) -> f64 {
-        self.prepare
-            + self.scan
-            + self.window_nograd
-            + self.critic_step
-            + self.models
-            + self.critic_rescan
-            + self.actor_step
-            + self.other
+impl Scanned {
+    /// The behaviour actor's scanned state.
+    ///
+    /// # Panics
+    /// If the update did not scan it (see [`Scanned::actor`]).
+    pub(super) fn actor(&self) -> &RecState {
+        self.actor
+            .as_ref()
+            .expect("the behaviour actor is scanned where the update reads it")
     }
 }
 
 impl RdpgAgent {
-    /// Switches per-phase timing on (resetting it) or off.
-    pub fn set_profiling(&mut self, on: bool) {
-        self.profile = on.then(PhaseTimes::default);
-    }
-
-    /// The per-phase timings accumulated since profiling was switched on.
-    pub fn profile(&self) -> Option<PhaseTimes> {
-        self.profile
-    }
-
     /// One RDPG update (Algorithm 1, `Update`) on `batch`. See the module docs for the steps.
     ///
     /// # Panics
@@ -135,187 +86,169 @@ impl RdpgAgent {
         if self.cfg.flush_denormal {
             crate::common::tensor::set_flush_denormal(true);
         }
-        let started = std::time::Instant::now();
+        if self.cfg.parallel_twins {
+            return self.update_parallel(batch); // the same update on two threads (twins.rs)
+        }
+        let started = Instant::now();
         let mut clock = Clock::new(self.profile.is_some());
         let p = self.prepare(batch);
-        // The second thread of `parallel_twins`, kept for the agent's life.
-        let mut side = self
-            .cfg
-            .parallel_twins
-            .then(|| self.side.take().unwrap_or_default());
-        // FORK with `parallel_twins`: its models take their step on the second thread while
-        // this one runs both critics (the one-thread path of step 2, bit-identical to the
-        // split); without the second thread they step here after the critics.
-        let models_on_side = match (&mut side, self.fork.take()) {
-            (Some(side), Some(mut f)) => {
-                let p1 = p.shallow_clone();
-                side.start(self.cfg.flush_denormal, move || {
-                    let step = f.train(&p1);
-                    (f, step)
-                });
-                true
-            }
-            (_, f) => {
-                self.fork = f;
-                false
-            }
-        };
         clock.lap(|t| &mut t.prepare);
 
         // ---- 1. Scan: h_{-1} for every network, no gradient (paper Eq. (scan)). -------------
-        let sc = match &mut side {
-            Some(side) if !models_on_side => self.scan_all_parallel(&p, side),
-            _ => self.scan_all(&p),
-        };
+        let sc = self.scan_for(&p, self.scans_actor());
         clock.lap(|t| &mut t.scan);
 
-        // ---- 2. Critic: q along the window (with gradient) and its targets (without). -------
-        let twin_side = side.as_mut().filter(|_| !models_on_side);
-        let (q0, critic_loss, actor_states) = if let Some(side) = twin_side {
-            self.twin_critic_gradients(&p, &sc, side, &mut clock)
-        } else {
-            let (q_sa, y, actor_states) = self.critic_objective(&p, &sc, &mut clock);
-            let critic_loss = q_sa
-                .iter()
-                .map(|q| critic_loss_from(&p, q, &y))
-                .reduce(|a, b| a + b)
-                .expect("at least one critic");
-            self.critic_opt.zero_grad();
-            critic_loss.backward();
-            (q_sa[0].detach(), critic_loss, actor_states)
-        };
+        // ---- 2. Critic: TD gradient (Eq. (unsyncedinterpolatedTD)) and its Adam step. --------
+        let (q0, critic_loss, actor_states) = self.critic_gradients(&p, &sc, &mut clock);
         if let Some(c) = self.cfg.grad_clip {
             let _ = self.critic_opt.clip_grad_norm(c);
         }
-        // TD3's delayed policy update: the actor and the target networks move on every
-        // `policy_delay`-th update only (every update for the paper's RDPG, delay 1).
-        self.updates += 1;
-        let actor_turn = self.updates.is_multiple_of(self.cfg.policy_delay as u64);
-        let updated_critic = self.cfg.actor_uses_updated_critic || !actor_turn;
-        // Critic states h^C_{i-1} along the window for the actor loss: from the pre-update
-        // critic, or (Algorithm 1 order) rescanned after its Adam step.
-        let critic_states_old =
-            (!updated_critic).then(|| tch::no_grad(|| self.critic_states(&p, &sc.critics[0])));
-        let side_model_step = models_on_side.then(|| {
-            let side = side.as_mut().expect("started with the models' step");
-            let (f, step) = side.finish::<(super::fork::ForkModels, super::fork::ModelStep)>();
-            self.fork = Some(f);
-            step
-        });
-        // Adam for the critics: one step, taken now or after the actor's backward pass. With
-        // `parallel_twins` critic 1's share (and on the actor's turn its target's soft update)
-        // runs on the second thread until the end of the update: nothing below reads critic 1.
-        let critic_step = self.critic_opt.begin_step();
-        let n_critic = self.critic_opt.params().len();
-        let (own, side_targets) = match &mut side {
-            Some(side) => {
-                let split = self.critic0_params;
-                let mut part = self.critic_opt.part(split..n_critic);
-                let t = self.targets.as_ref().expect("validated: target networks");
-                let k = t.pairs.len() - (n_critic - split); // critic 1's target pairs are last
-                let mut pairs: Vec<(Tensor, Tensor)> = t.pairs[k..]
-                    .iter()
-                    .map(|(a, b)| (a.shallow_clone(), b.shallow_clone()))
-                    .collect();
-                let tau = self.cfg.tau;
-                side.start(self.cfg.flush_denormal, move || {
-                    part.apply(&critic_step);
-                    if actor_turn {
-                        soft_update(&mut pairs, tau);
-                    }
-                });
-                (0..split, k)
-            }
-            None => (
-                0..n_critic,
-                self.targets.as_ref().map_or(0, |t| t.pairs.len()),
-            ),
-        };
-        if updated_critic {
-            self.critic_opt.apply(&critic_step, own.clone());
+        let actor_turn = self.count_update();
+        // Algorithm 1 order: the actor reads the critic after its step. Otherwise (on the
+        // actor's turn) the actor reads the critic as it was and the critic steps after the
+        // actor's backward pass.
+        let deferred = actor_turn && !self.cfg.actor_uses_updated_critic;
+        let critic_states_before =
+            deferred.then(|| tch::no_grad(|| self.critic_states(&p, &sc.critics[0])));
+        if !deferred {
+            self.critic_opt.step();
         }
         clock.lap(|t| &mut t.critic_step);
 
         // ---- FORK's models: one step each on this batch (`fork.rs`). -------------------------
-        let model_step = match side_model_step {
-            Some(step) => Some(step),
-            None => self.fork.as_mut().map(|f| f.train(&p)),
-        };
+        let model_step = self.fork.as_mut().map(|f| f.train(&p));
         clock.lap(|t| &mut t.models);
 
         // ---- 3. Actor: deterministic policy gradient (Eq. (DPG)), no BPTT by default. ------
-        let mut actor_loss_value = None;
+        // TD3's delayed policy update: the actor and the target networks move on every
+        // `policy_delay`-th update only (every update for the paper's RDPG, delay 1).
+        let mut actor_loss = None;
         if actor_turn {
-            let critic_states = match critic_states_old {
-                Some(s) => s,
-                None => tch::no_grad(|| {
-                    let h = scan_critic(&self.critics[0], &p, self.cfg.scan_method);
-                    self.critic_states(&p, &h)
-                }),
-            };
+            let critic_states =
+                critic_states_before.unwrap_or_else(|| self.updated_critic_states(&p));
             clock.lap(|t| &mut t.critic_rescan);
-            let actor_in = match &actor_states {
-                Some((hb, cb)) => ActorInput::Detached { h: hb, c: cb },
-                None => ActorInput::Bptt { h0: &sc.actor },
-            };
-            // Critic 0 is a constant here: no gradients are computed or accumulated for it
-            // (the only critic the actor loss reads).
-            self.critic_vs[0].freeze();
-            let (mut loss, a0) =
-                actor_loss(&self.actor, &self.critics[0], &p, actor_in, &critic_states);
-            // FORK: + w J_fork while the dynamics model is accurate enough (from the same
-            // actions mu(o_i), [N*l, A]).
-            if let (Some(f), Some(m)) = (&mut self.fork, &model_step) {
-                if m.use_term {
-                    let w = f.cfg.weight;
-                    let j = f.actor_term(&self.actor, &self.critics[0], &p, &a0, self.cfg.gamma);
-                    loss += j * w;
-                }
-            }
-            self.actor_opt.zero_grad();
-            loss.backward();
-            self.critic_vs[0].unfreeze();
-            if let Some(c) = self.cfg.grad_clip {
-                let _ = self.actor_opt.clip_grad_norm(c);
-            }
-            if !updated_critic {
-                self.critic_opt.apply(&critic_step, own);
+            let loss = self.actor_gradient(&p, &sc, &actor_states, &critic_states, &model_step);
+            if deferred {
+                self.critic_opt.step();
             }
             self.actor_opt.step();
-            actor_loss_value = Some(loss.double_value(&[]));
+            actor_loss = Some(loss);
             clock.lap(|t| &mut t.actor_step);
 
             // ---- 4. Soft target update theta' <- theta' + tau (theta - theta'). -----------
-            // (Critic 1's target on the second thread with `parallel_twins`.)
             if let Some(t) = &mut self.targets {
-                soft_update(&mut t.pairs[..side_targets], self.cfg.tau);
+                soft_update(&mut t.pairs, self.cfg.tau);
             }
         }
-        if let Some(mut side) = side {
-            side.finish::<()>();
-            self.side = Some(side);
-        }
-        let q_mean = tch::no_grad(|| (&q0 * &p.mask).sum(self.kind) / p.mask.sum(self.kind));
-        let stats = UpdateStats {
-            critic_loss: critic_loss.double_value(&[]),
-            actor_loss: actor_loss_value,
-            q_mean: q_mean.double_value(&[]),
-            injected_share: batch.injected.iter().map(|&x| f64::from(x)).sum::<f64>()
-                / batch.n as f64,
-            seconds: started.elapsed().as_secs_f64(),
-            model_loss: model_step.as_ref().map(|m| m.dynamics_loss),
-            fork_term: model_step.filter(|_| actor_turn).map(|m| m.use_term),
-        };
+        let mut stats = self.update_stats(batch, &p, &q0, &critic_loss, actor_loss, model_step);
+        stats.seconds = started.elapsed().as_secs_f64();
         clock.lap(|t| &mut t.other);
-        if let Some(pt) = &mut self.profile {
-            clock.add_into(pt);
-            pt.updates += 1;
-        }
+        clock.finish(&mut self.profile);
         stats
     }
 
-    /// Step 2 of the update: `Q(o_i, a_i | h_{i-1})` of every critic along the window, with
-    /// gradient (`[N, l]` each), and their targets `y` (`[N, l]`) and the actor's states along
+    /// Step 2's gradient: the critics' TD loss (summed over twins) back-propagated into
+    /// zeroed gradients. Returns critic 0's `Q(o_i, a_i | h_{i-1})` on the trained steps
+    /// (detached), the loss and the actor's states along the window (per-step actor gradient).
+    pub(super) fn critic_gradients(
+        &mut self,
+        p: &Prepared,
+        sc: &Scanned,
+        clock: &mut Clock,
+    ) -> (Tensor, Tensor, Option<(Tensor, Tensor)>) {
+        let (q_sa, y, actor_states) = self.critic_objective(p, sc, clock);
+        let critic_loss = q_sa
+            .iter()
+            .map(|q| critic_loss_from(p, q, &y))
+            .reduce(|a, b| a + b)
+            .expect("at least one critic");
+        self.critic_opt.zero_grad();
+        critic_loss.backward();
+        (q_sa[0].detach(), critic_loss, actor_states)
+    }
+
+    /// Counts the update; whether it is the actor's turn (TD3's `policy_delay`).
+    pub(super) fn count_update(&mut self) -> bool {
+        self.updates += 1;
+        self.updates.is_multiple_of(self.cfg.policy_delay as u64)
+    }
+
+    /// Critic 0's states `h^C_{i-1}` along the window after its Adam step: its scan and its
+    /// run along the replayed actions again (no gradient).
+    pub(super) fn updated_critic_states(&self, p: &Prepared) -> (Tensor, Tensor) {
+        tch::no_grad(|| {
+            let h = scan_critic(&self.critics[0], p, self.cfg.scan_method);
+            self.critic_states(p, &h)
+        })
+    }
+
+    /// Step 3's gradient: the actor loss (Eq. (DPG), plus FORK's weighted term while its
+    /// dynamics model is accurate enough) back-propagated into the actor's zeroed gradients
+    /// (clipped), critic 0 held constant. Returns the loss.
+    pub(super) fn actor_gradient(
+        &mut self,
+        p: &Prepared,
+        sc: &Scanned,
+        actor_states: &Option<(Tensor, Tensor)>,
+        critic_states: &(Tensor, Tensor),
+        model_step: &Option<ModelStep>,
+    ) -> f64 {
+        let actor_in = match actor_states {
+            Some((hb, cb)) => ActorInput::Detached { h: hb, c: cb },
+            None => ActorInput::Bptt { h0: sc.actor() },
+        };
+        // Critic 0 is a constant here: no gradients are computed or accumulated for it
+        // (the only critic the actor loss reads).
+        self.critic_vs[0].freeze();
+        let (mut loss, a0) = actor_loss(&self.actor, &self.critics[0], p, actor_in, critic_states);
+        // FORK: + w J_fork while the dynamics model is accurate enough (from the same
+        // actions mu(o_i), [N*l, A]).
+        if let (Some(f), Some(m)) = (&mut self.fork, model_step) {
+            if m.use_term {
+                let w = f.cfg.weight;
+                let j = f.actor_term(&self.actor, &self.critics[0], p, &a0, self.cfg.gamma);
+                loss += j * w;
+            }
+        }
+        self.actor_opt.zero_grad();
+        loss.backward();
+        self.critic_vs[0].unfreeze();
+        if let Some(c) = self.cfg.grad_clip {
+            let _ = self.actor_opt.clip_grad_norm(c);
+        }
+        loss.double_value(&[])
+    }
+
+    /// The update's statistics (`seconds` left at 0 for the caller to set).
+    pub(super) fn update_stats(
+        &self,
+        batch: &SequenceBatch,
+        p: &Prepared,
+        q0: &Tensor,
+        critic_loss: &Tensor,
+        actor_loss: Option<f64>,
+        model_step: Option<ModelStep>,
+    ) -> UpdateStats {
+        // Mean over the trained steps (the real ones among the first u).
+        let mask = p.mask.narrow(1, 0, p.u);
+        let q_mean = tch::no_grad(|| (q0 * &mask).sum(self.kind) / mask.sum(self.kind));
+        UpdateStats {
+            critic_loss: critic_loss.double_value(&[]),
+            q_mean: q_mean.double_value(&[]),
+            injected_share: batch.injected.iter().map(|&x| f64::from(x)).sum::<f64>()
+                / batch.n as f64,
+            seconds: 0.0,
+            actor_loss,
+            model_loss: model_step.as_ref().map(|m| m.dynamics_loss),
+            // FORK's term is reported on the actor's turns only.
+            fork_term: model_step
+                .filter(|_| actor_loss.is_some())
+                .map(|m| m.use_term),
+        }
+    }
+
+    /// Step 2 of the update: `Q(o_i, a_i | h_{i-1})` of every critic on the trained steps, with
+    /// gradient (`[N, u]` each), and their targets `y` (`[N, l]`) and the actor's states along
     /// the window (per-step actor gradient), both without gradient:
     ///
     /// 2a. the behaviour actor along the window from its scanned state gives its states and the
@@ -346,7 +279,7 @@ impl RdpgAgent {
                     .critics
                     .iter()
                     .zip(&sc.critics)
-                    .map(|(c, h)| critic_window(c, p, h, None))
+                    .map(|(c, h)| trained_q(c, p, h))
                     .collect();
                 (q_sa, y)
             }
@@ -364,28 +297,27 @@ impl RdpgAgent {
         sc: &Scanned,
     ) -> (Option<(Tensor, Tensor)>, Tensor) {
         let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
-        if let (false, Some(t), Some(h)) = (
-            self.actor.core.is_recurrent(),
-            &self.targets,
-            &sc.target_actor,
-        ) {
-            // Feed-forward with a target actor: the behaviour actor's run along the window
-            // would serve nothing (no states to keep, the bootstrap comes from mu').
-            return (None, tail_action(&t.actor, p, h));
+        if let (Some(t), Some(h)) = (&self.targets, &sc.target_actor) {
+            // The bootstrap comes from mu': the behaviour actor runs for its states only, on
+            // the actor's turn (when it was scanned).
+            let states = sc
+                .actor
+                .as_ref()
+                .filter(|_| need_states)
+                .map(|h| actor_states(&self.actor, p, h));
+            return (states, tail_action(&t.actor, p, h));
         }
+        // No target actor: the behaviour actor's run along the window (l + 1 slots) gives both;
+        // its output at the tail slot `len_n` is mu(o_tail | h_{len-1}).
         let xa = self.actor.input_seq(&p.obs_win); // [N, l+1, E]
         let (ya, states) = if need_states {
-            let (ya, hb, cb, _) = self.actor.core.stepwise(&xa, &sc.actor);
+            let (ya, hb, cb, _) = self.actor.core.stepwise(&xa, sc.actor());
             (ya, Some((hb.narrow(1, 0, p.l), cb.narrow(1, 0, p.l))))
         } else {
-            (self.actor.core.seq(&xa, &sc.actor).0, None)
+            (self.actor.core.seq(&xa, sc.actor()).0, None)
         };
-        let a_tail = match (&self.targets, &sc.target_actor) {
-            (Some(t), Some(h)) => tail_action(&t.actor, p, h),
-            // The output at the tail slot `len_n` is mu(o_tail | h_{len-1}).
-            _ => (self.actor.head(&ya) * p.tail_onehot.unsqueeze(-1))
-                .sum_dim_intlist(1, false, self.kind),
-        };
+        let a_tail = (self.actor.head(&ya) * p.tail_onehot.unsqueeze(-1))
+            .sum_dim_intlist(1, false, self.kind);
         (states, a_tail)
     }
 
@@ -408,10 +340,11 @@ impl RdpgAgent {
         })
     }
 
-    /// Step 2b's forward pass (with gradient): `Q(o_i, a_i | h_{i-1})` of every critic along
-    /// the window, `[N, l]` each, and the bootstrap value `[N]`. Without target networks each
-    /// critic's run continues one step into the tail slot with `a_tail`; that output,
-    /// detached (minimum over twins), is the bootstrap.
+    /// Step 2b's forward pass (with gradient): `Q(o_i, a_i | h_{i-1})` of every critic on the
+    /// trained steps, `[N, u]` each, and the bootstrap value `[N]`. With target networks the
+    /// critics run over the first `u` window steps only (the loss weighs no later step);
+    /// without them each critic's run continues to the tail slot with `a_tail`, and that
+    /// output, detached (minimum over twins), is the bootstrap.
     pub(super) fn critic_forward(
         &self,
         p: &Prepared,
@@ -419,85 +352,17 @@ impl RdpgAgent {
         a_tail: &Tensor,
         target_q_tail: Option<Tensor>,
     ) -> (Vec<Tensor>, Tensor) {
-        let with_tail = target_q_tail.is_none();
-        let qs: Vec<Tensor> = self
-            .critics
-            .iter()
-            .zip(&sc.critics)
-            .map(|(c, h)| critic_window(c, p, h, with_tail.then_some(a_tail)))
-            .collect(); // each [N, l (+1)]
-        let q_tail = match target_q_tail {
-            Some(q) => q,
-            None => min_all(&qs.iter().map(|q| tail_q(p, q).detach()).collect::<Vec<_>>()),
-        };
-        (qs.iter().map(|q| q.narrow(1, 0, p.l)).collect(), q_tail)
-    }
-
-    /// Step 2 with `parallel_twins` (tail-step bootstrap, target networks), with the same
-    /// arithmetic as [`RdpgAgent::critic_objective`] followed by one backward pass of the
-    /// summed loss, in three two-thread phases: the target actor's bootstrap action here and
-    /// the behaviour actor's states along the window there; `Q'(o_tail, a_tail)` of target
-    /// critic 0 here and 1 there; critic 0's TD loss and backward pass here and critic 1's
-    /// there (the gradient of the summed loss is the pair of their gradients: the critics share
-    /// no parameter). Zeroes the critics' gradients and back-propagates; returns critic 0's
-    /// `Q(o_i, a_i | h_{i-1})` (`[N, l]`, detached), the summed TD loss and the actor's states.
-    fn twin_critic_gradients(
-        &mut self,
-        p: &Prepared,
-        sc: &Scanned,
-        side: &mut SideThread,
-        clock: &mut Clock,
-    ) -> (Tensor, Tensor, Option<(Tensor, Tensor)>) {
-        let ftz = self.cfg.flush_denormal;
-        let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
-        let (mut a_tail, actor_states) = {
-            let t = self.targets.as_ref().expect("validated: target networks");
-            let h = sc.target_actor.as_ref().expect("scanned with the targets");
-            let main = || tch::no_grad(|| tail_action(&t.actor, p, h));
-            if need_states {
-                let (actor, p1, h1) = (
-                    self.actor.shallow_clone(),
-                    p.shallow_clone(),
-                    sc.actor.shallow_clone(),
-                );
-                let states = move || tch::no_grad(|| actor_states(&actor, &p1, &h1));
-                let (a_tail, states) = side.run(ftz, main, states);
-                (a_tail, Some(states))
-            } else {
-                (main(), None)
+        let critics = self.critics.iter().zip(&sc.critics);
+        match target_q_tail {
+            Some(q_tail) => (critics.map(|(c, h)| trained_q(c, p, h)).collect(), q_tail),
+            None => {
+                let qs: Vec<Tensor> = critics
+                    .map(|(c, h)| critic_window(c, p, h, Some(a_tail)))
+                    .collect(); // each [N, l + 1]
+                let q_tail = min_all(&qs.iter().map(|q| tail_q(p, q).detach()).collect::<Vec<_>>());
+                (qs.iter().map(|q| q.narrow(1, 0, p.u)).collect(), q_tail)
             }
-        };
-        if let Some(noise) = self.cfg.target_noise {
-            a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
         }
-        let t = self.targets.as_ref().expect("validated: target networks");
-        let (t1, p1, h1, a1) = (
-            t.critics[1].shallow_clone(),
-            p.shallow_clone(),
-            sc.target_critics[1].shallow_clone(),
-            a_tail.shallow_clone(),
-        );
-        let (q0_tail, q1_tail) = side.run(
-            ftz,
-            || tch::no_grad(|| target_q(&t.critics[0], p, &sc.target_critics[0], &a_tail)),
-            move || tch::no_grad(|| target_q(&t1, &p1, &h1, &a1)),
-        );
-        let y = tch::no_grad(|| td_targets(p, &q0_tail.minimum(&q1_tail))); // [N, l]
-        clock.lap(|t| &mut t.window_nograd);
-
-        self.critic_opt.zero_grad();
-        let (c1, p1, h1, y1) = (
-            self.critics[1].shallow_clone(),
-            p.shallow_clone(),
-            sc.critics[1].shallow_clone(),
-            y.shallow_clone(),
-        );
-        let ((q0, loss0), (_, loss1)) = side.run(
-            ftz,
-            || td_backward(&self.critics[0], p, &sc.critics[0], &y),
-            move || td_backward(&c1, &p1, &h1, &y1),
-        );
-        (q0, loss0 + loss1, actor_states)
     }
 
     /// The classic RDPG's targets (Heess et al. 2015), per step (call without gradient):
@@ -511,7 +376,7 @@ impl RdpgAgent {
         let (n, l) = (p.n, p.l);
         let (actor, actor_h) = match (&self.targets, &sc.target_actor) {
             (Some(t), Some(h)) => (&t.actor, h),
-            _ => (&self.actor, &sc.actor),
+            _ => (&self.actor, sc.actor()),
         };
         let (mu, _) = actor.forward_seq(&p.obs_win, actor_h); // [N, l+1, A]
         let mut next_a = mu.narrow(1, 1, l); // mu'(o_{i+1}), [N, l, A]
@@ -566,98 +431,20 @@ impl RdpgAgent {
         (a + noise).clamp(-1.0, 1.0)
     }
 
-    /// Uploads the batch and builds the small index/weight tensors of the update.
-    pub(super) fn prepare(&self, b: &SequenceBatch) -> Prepared {
-        let (n, s, l) = (b.n as i64, b.scan as i64, b.opt as i64);
-        let (d, a) = (b.obs_dim as i64, b.act_dim as i64);
-        let up = |v: &[f32], shape: &[i64]| -> Tensor {
-            Tensor::from_slice(v)
-                .view(shape)
-                .to_kind(self.kind)
-                .to_device(self.device)
-        };
-        let up64 = |v: Vec<f64>, shape: &[i64]| -> Tensor {
-            Tensor::from_slice(&v)
-                .view(shape)
-                .to_kind(self.kind)
-                .to_device(self.device)
-        };
-        let obs = up(&b.obs, &[n, s + l + 1, d]);
-        let actions = up(&b.actions, &[n, s + l, a]);
-        let rewards = up(&b.rewards, &[n, s + l]);
-        let gamma = self.cfg.gamma;
-        let u = self.cfg.update_len.min(b.opt);
-        let (nn, ll) = (b.n, b.opt);
-        // lambda^i / sum_{j<u} lambda^j on the first u steps, shared by all windows (padded
-        // steps drop out, short windows are not renormalised): rdpg-core's reference.
-        let td_w = interpolated_td_weights_padded(ll, u, self.cfg.lambda);
-        let mut onehot = vec![0.0; nn * (ll + 1)];
-        let mut mask = vec![0.0; nn * ll];
-        let mut boot_coef = vec![0.0; nn * ll];
-        let mut critic_w = vec![0.0; nn * ll];
-        let mut actor_w = vec![0.0; nn * ll];
-        let mut not_term = vec![0.0; nn];
-        let mut step_not_done = vec![1.0; nn * ll];
-        for i in 0..nn {
-            let len = b.opt_len[i];
-            onehot[i * (ll + 1) + len] = 1.0;
-            not_term[i] = 1.0 - f64::from(b.tail_terminated[i]);
-            step_not_done[i * ll + len - 1] = not_term[i];
-            for j in 0..len {
-                mask[i * ll + j] = 1.0;
-                boot_coef[i * ll + j] = gamma.powi((len - j) as i32);
-                actor_w[i * ll + j] = 1.0 / len as f64;
-                critic_w[i * ll + j] = td_w[j];
-            }
-        }
-        // disc[k, i] = gamma^(k - i) for k >= i: (r * mask) @ disc = discounted reward sums.
-        let mut disc = vec![0.0; ll * ll];
-        for k in 0..ll {
-            for i in 0..=k {
-                disc[k * ll + i] = gamma.powi((k - i) as i32);
-            }
-        }
-        // The stored acting-time state of each window's first step (its first scan step, or
-        // with `s = 0` its first optimisation step: R2D2's "stored state, no burn-in").
-        let stored = match (&b.stored_state, self.cfg.burn_in_from_stored_state) {
-            (Some(st), true) => {
-                let h = self.actor.core.state_width();
-                let t = up(st, &[n, 2 * h]);
-                Some(RecState {
-                    h: t.narrow(1, 0, h).unsqueeze(0).contiguous(),
-                    c: t.narrow(1, h, h).unsqueeze(0).contiguous(),
-                })
-            }
-            _ => None,
-        };
-        Prepared {
-            n,
-            s,
-            l,
-            obs_scan: obs.narrow(1, 0, s),
-            act_scan: actions.narrow(1, 0, s),
-            obs_win: obs.narrow(1, s, l + 1),
-            act_win: actions.narrow(1, s, l),
-            rew: rewards.narrow(1, s, l),
-            mask: up64(mask, &[n, l]),
-            tail_onehot: up64(onehot, &[n, l + 1]),
-            not_term: up64(not_term, &[n]),
-            step_not_done: up64(step_not_done, &[n, l]),
-            boot_coef: up64(boot_coef, &[n, l]),
-            disc: up64(disc, &[l, l]),
-            critic_w: up64(critic_w, &[n, l]),
-            actor_w: up64(actor_w, &[n, l]),
-            scan_len: b.scan_len.clone(),
-            stored,
-        }
+    /// Step 1 for every network, without gradient.
+    #[cfg(test)]
+    pub(super) fn scan_all(&self, p: &Prepared) -> Scanned {
+        self.scan_for(p, true)
     }
 
-    /// Step 1 for every network, without gradient.
-    pub(super) fn scan_all(&self, p: &Prepared) -> Scanned {
+    /// Step 1 without gradient for every network the update reads: the behaviour actor only
+    /// with `actor` (its states serve the actor's turn alone when target networks give the
+    /// bootstrap; see [`RdpgAgent::scans_actor`]).
+    pub(super) fn scan_for(&self, p: &Prepared, actor: bool) -> Scanned {
         let method = self.cfg.scan_method;
         let actor_init = self.actor_init(p);
         tch::no_grad(|| Scanned {
-            actor: scan_actor(&self.actor, p, &actor_init, method),
+            actor: actor.then(|| scan_actor(&self.actor, p, &actor_init, method)),
             critics: self
                 .critics
                 .iter()
@@ -676,53 +463,14 @@ impl RdpgAgent {
         })
     }
 
-    /// Step 1 with `parallel_twins`: actor, critic 0 and target critic 0 here; critic 1, its
-    /// target and the target actor on a second thread (when there is a scan to run).
-    fn scan_all_parallel(&self, p: &Prepared, side: &mut SideThread) -> Scanned {
-        if p.s == 0 || !self.actor.core.is_recurrent() {
-            return self.scan_all(p);
-        }
-        let method = self.cfg.scan_method;
-        let t = self.targets.as_ref().expect("validated: target networks");
-        let actor_init = self.actor_init(p);
-        let (c1, t1, ta, p1, init1) = (
-            self.critics[1].shallow_clone(),
-            t.critics[1].shallow_clone(),
-            t.actor.shallow_clone(),
-            p.shallow_clone(),
-            actor_init.shallow_clone(),
-        );
-        let ((actor, h0, th0), (h1, th1, h_ta)) = side.run(
-            self.cfg.flush_denormal,
-            || {
-                tch::no_grad(|| {
-                    (
-                        scan_actor(&self.actor, p, &actor_init, method),
-                        scan_critic(&self.critics[0], p, method),
-                        scan_critic(&t.critics[0], p, method),
-                    )
-                })
-            },
-            move || {
-                tch::no_grad(|| {
-                    (
-                        scan_critic(&c1, &p1, method),
-                        scan_critic(&t1, &p1, method),
-                        scan_actor(&ta, &p1, &init1, method),
-                    )
-                })
-            },
-        );
-        Scanned {
-            actor,
-            critics: vec![h0, h1],
-            target_actor: Some(h_ta),
-            target_critics: vec![th0, th1],
-        }
+    /// Whether this update reads the behaviour actor's scan: on the actor's turn, or always
+    /// without target networks (the behaviour actor gives the bootstrap action).
+    pub(super) fn scans_actor(&self) -> bool {
+        self.targets.is_none() || (self.updates + 1).is_multiple_of(self.cfg.policy_delay as u64)
     }
 
     /// The actor scans' initial state: the stored acting-time state, or zeros.
-    fn actor_init(&self, p: &Prepared) -> RecState {
+    pub(super) fn actor_init(&self, p: &Prepared) -> RecState {
         match &p.stored {
             Some(st) => st.shallow_clone(),
             None => self.actor.core.zero_state(p.n, self.kind, self.device),
@@ -740,75 +488,12 @@ impl RdpgAgent {
             return (z.shallow_clone(), z);
         }
         let x = critic.input_seq(&p.obs_win.narrow(1, 0, p.l), &p.act_win);
-        let (_, hb, cb, _) = critic.core.stepwise(&x, h);
-        (hb, cb)
-    }
-}
-
-/// The batch on the device, split into the scan part and the optimisation window.
-pub(super) struct Prepared {
-    pub(super) n: i64,
-    pub(super) s: i64,
-    pub(super) l: i64,
-    /// `[N, s, D]`, `[N, s, A]`: the scan part.
-    pub(super) obs_scan: Tensor,
-    pub(super) act_scan: Tensor,
-    /// `[N, l + 1, D]`: the window's observations plus the slot that holds `o_tail` for
-    /// full windows (shorter windows have it at `len`, inside the window).
-    pub(super) obs_win: Tensor,
-    /// `[N, l, A]`, `[N, l]`: replayed actions and rewards of the window.
-    pub(super) act_win: Tensor,
-    pub(super) rew: Tensor,
-    /// `[N, l]`: 1 on real steps.
-    pub(super) mask: Tensor,
-    /// `[N, l + 1]`: 1 at the tail position `len_n`.
-    pub(super) tail_onehot: Tensor,
-    /// `[N]`: `1 - tail_terminated`.
-    pub(super) not_term: Tensor,
-    /// `[N, l]`: 0 on the last real step of a window whose tail is terminal, else 1 (the
-    /// per-step TD(0) targets' `1 - term_i`).
-    pub(super) step_not_done: Tensor,
-    /// `[N, l]`: `gamma^(len - i)` on real steps.
-    pub(super) boot_coef: Tensor,
-    /// `[l, l]`: `gamma^(k - i)` for `k >= i`.
-    pub(super) disc: Tensor,
-    /// `[N, l]`: `lambda^i / sum_{j<u} lambda^j` on real steps among the first `u`.
-    pub(super) critic_w: Tensor,
-    /// `[N, l]`: `1 / len` on real steps.
-    pub(super) actor_w: Tensor,
-    pub(super) scan_len: Vec<usize>,
-    /// Stored acting-time actor states `[1, N, H]` (when burning in from them).
-    pub(super) stored: Option<RecState>,
-}
-
-impl Prepared {
-    /// Second handles to the same tensors, for the second thread of `parallel_twins`.
-    fn shallow_clone(&self) -> Self {
-        Self {
-            n: self.n,
-            s: self.s,
-            l: self.l,
-            obs_scan: self.obs_scan.shallow_clone(),
-            act_scan: self.act_scan.shallow_clone(),
-            obs_win: self.obs_win.shallow_clone(),
-            act_win: self.act_win.shallow_clone(),
-            rew: self.rew.shallow_clone(),
-            mask: self.mask.shallow_clone(),
-            tail_onehot: self.tail_onehot.shallow_clone(),
-            not_term: self.not_term.shallow_clone(),
-            step_not_done: self.step_not_done.shallow_clone(),
-            boot_coef: self.boot_coef.shallow_clone(),
-            disc: self.disc.shallow_clone(),
-            critic_w: self.critic_w.shallow_clone(),
-            actor_w: self.actor_w.shallow_clone(),
-            scan_len: self.scan_len.clone(),
-            stored: self.stored.as_ref().map(RecState::shallow_clone),
-        }
+        critic.core.states_before(&x, h)
     }
 }
 
 /// `theta' <- theta' + tau (theta - theta')` for each (target, online) pair.
-fn soft_update(pairs: &mut [(Tensor, Tensor)], tau: f64) {
+pub(super) fn soft_update(pairs: &mut [(Tensor, Tensor)], tau: f64) {
     tch::no_grad(|| {
         for (tv, sv) in pairs {
             let _ = tv.lerp_(sv, tau);
@@ -833,9 +518,9 @@ pub(super) fn scan_actor(
 
 /// The recurrent actor's states before each optimisation step (`[N, l, H]` each), from its
 /// scanned state `h` along the window (call without gradient).
-fn actor_states(actor: &Actor, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
-    let (_, hb, cb, _) = actor.core.stepwise(&actor.input_seq(&p.obs_win), h);
-    (hb.narrow(1, 0, p.l), cb.narrow(1, 0, p.l))
+pub(super) fn actor_states(actor: &Actor, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
+    let x = actor.input_seq(&p.obs_win.narrow(1, 0, p.l)); // [N, l, E]
+    actor.core.states_before(&x, h)
 }
 
 /// `h_{-1}` of `critic` from zeros (call without gradient): its scan over the replayed
@@ -862,18 +547,11 @@ pub(super) fn target_q(c: &Critic, p: &Prepared, h: &RecState, a_tail: &Tensor) 
     }
 }
 
-/// One critic's part of step 2b: `Q(o_i, a_i | h_{i-1})` along the window (`[N, l]`), its TD
-/// loss against `y` and the loss's backward pass. Returns both detached.
-fn td_backward(c: &Critic, p: &Prepared, h: &RecState, y: &Tensor) -> (Tensor, Tensor) {
-    let q = critic_window(c, p, h, None);
-    let loss = critic_loss_from(p, &q, y);
-    loss.backward();
-    (q.detach(), loss.detach())
-}
-
-/// `h_{-1}` of every network.
+/// `h_{-1}` of every network (the behaviour actor's only where the update reads it).
 pub(super) struct Scanned {
-    pub(super) actor: RecState,
+    /// `None` where the update does not read it: on updates that do not train the actor
+    /// when target networks give the bootstrap.
+    pub(super) actor: Option<RecState>,
     pub(super) critics: Vec<RecState>,
     pub(super) target_actor: Option<RecState>,
     pub(super) target_critics: Vec<RecState>,
@@ -902,6 +580,13 @@ pub(super) fn critic_window(
         }
         None => (p.obs_win.narrow(1, 0, p.l), p.act_win.shallow_clone()),
     };
+    critic.forward_seq(&obs, &act, h).0
+}
+
+/// `Q(o_i, a_i | h_{i-1})` of `critic` on the steps the loss trains, the first `u` of the
+/// window (`[N, u]`), from its scanned state.
+pub(super) fn trained_q(critic: &Critic, p: &Prepared, h: &RecState) -> Tensor {
+    let (obs, act) = (p.obs_win.narrow(1, 0, p.u), p.act_win.narrow(1, 0, p.u));
     critic.forward_seq(&obs, &act, h).0
 }
 
@@ -942,9 +627,24 @@ pub(super) fn td_targets(p: &Prepared, q_tail: &Tensor) -> Tensor {
     returns + &p.boot_coef * (q_tail * &p.not_term).unsqueeze(1)
 }
 
-/// `1/N sum_n sum_i w_{n,i} (y_{n,i} - q_{n,i})^2` (paper Eq. (unsyncedinterpolatedTD)).
+/// `1/N sum_n sum_i w_{n,i} (y_{n,i} - q_{n,i})^2` (paper Eq. (unsyncedinterpolatedTD)) for
+/// `q_sa [N, w]` on the first `w <= l` window steps (`w = u`, the trained steps, in the
+/// update), `y [N, l]`. The squared errors are summed in the window's `[N, l]` layout, zero
+/// past `w` (where `w_{n,i} = 0` anyway for `i >= u`): the sum adds the same terms in the same
+/// order as a run over the whole window, bit for bit.
 pub(super) fn critic_loss_from(p: &Prepared, q_sa: &Tensor, y: &Tensor) -> Tensor {
-    (&p.critic_w * (y - q_sa).square()).sum(q_sa.kind()) / p.n as f64
+    let w = q_sa.size()[1];
+    let mut sq = (y.narrow(1, 0, w) - q_sa).square(); // [N, w]
+    if w < p.l {
+        sq = Tensor::cat(
+            &[
+                sq.shallow_clone(),
+                sq.new_zeros([p.n, p.l - w], (sq.kind(), sq.device())),
+            ],
+            1,
+        );
+    }
+    (&p.critic_w * sq).sum(q_sa.kind()) / p.n as f64
 }
 
 /// Where the actor's recurrent input comes from in the actor loss.
@@ -996,33 +696,4 @@ pub(super) fn actor_loss(
     let (q, _) = critic.step(&obs_flat, &a, &stc); // [N*l]
     let loss = -(q.reshape([n, l]) * &p.actor_w).sum(a.kind()) / n as f64;
     (loss, a)
-}
-
-/// Per-phase stopwatch (no-op when profiling is off).
-pub(super) struct Clock {
-    on: bool,
-    last: Instant,
-    acc: PhaseTimes,
-}
-
-impl Clock {
-    pub(super) fn new(on: bool) -> Self {
-        Self {
-            on,
-            last: Instant::now(),
-            acc: PhaseTimes::default(),
-        }
-    }
-
-    fn lap(&mut self, field: impl FnOnce(&mut PhaseTimes) -> &mut f64) {
-        if self.on {
-            let now = Instant::now();
-            *field(&mut self.acc) += (now - self.last).as_secs_f64();
-            self.last = now;
-        }
-    }
-
-    fn add_into(&self, t: &mut PhaseTimes) {
-        t.add(&self.acc);
-    }
 }

@@ -1,0 +1,164 @@
+//! The batch as the update reads it ([`Prepared`]): the replay's windows uploaded to the
+//! device, split into the scan part and the optimisation window, with the small index and
+//! weight tensors of the targets and losses built once per update.
+
+use rdpg_core::targets::interpolated_td_weights_padded;
+use rdpg_core::SequenceBatch;
+use tch::Tensor;
+
+use super::agent::RdpgAgent;
+use super::lstm::RecState;
+
+/// The batch on the device, split into the scan part and the optimisation window.
+pub(super) struct Prepared {
+    pub(super) n: i64,
+    pub(super) s: i64,
+    pub(super) l: i64,
+    /// Steps the critic trains on in each window: `min(u, l)`, the first ones.
+    pub(super) u: i64,
+    /// `[N, s, D]`, `[N, s, A]`: the scan part.
+    pub(super) obs_scan: Tensor,
+    pub(super) act_scan: Tensor,
+    /// `[N, l + 1, D]`: the window's observations plus the slot that holds `o_tail` for
+    /// full windows (shorter windows have it at `len`, inside the window).
+    pub(super) obs_win: Tensor,
+    /// `[N, l, A]`, `[N, l]`: replayed actions and rewards of the window.
+    pub(super) act_win: Tensor,
+    pub(super) rew: Tensor,
+    /// `[N, l]`: 1 on real steps.
+    pub(super) mask: Tensor,
+    /// `[N, l + 1]`: 1 at the tail position `len_n`.
+    pub(super) tail_onehot: Tensor,
+    /// `[N]`: `1 - tail_terminated`.
+    pub(super) not_term: Tensor,
+    /// `[N, l]`: 0 on the last real step of a window whose tail is terminal, else 1 (the
+    /// per-step TD(0) targets' `1 - term_i`).
+    pub(super) step_not_done: Tensor,
+    /// `[N, l]`: `gamma^(len - i)` on real steps.
+    pub(super) boot_coef: Tensor,
+    /// `[l, l]`: `gamma^(k - i)` for `k >= i`.
+    pub(super) disc: Tensor,
+    /// `[N, l]`: `lambda^i / sum_{j<u} lambda^j` on real steps among the first `u`.
+    pub(super) critic_w: Tensor,
+    /// `[N, l]`: `1 / len` on real steps.
+    pub(super) actor_w: Tensor,
+    pub(super) scan_len: Vec<usize>,
+    /// Stored acting-time actor states `[1, N, H]` (when burning in from them).
+    pub(super) stored: Option<RecState>,
+}
+
+impl Prepared {
+    /// Second handles to the same tensors, for the second thread of `parallel_twins`.
+    pub(super) fn shallow_clone(&self) -> Self {
+        Self {
+            n: self.n,
+            s: self.s,
+            l: self.l,
+            u: self.u,
+            obs_scan: self.obs_scan.shallow_clone(),
+            act_scan: self.act_scan.shallow_clone(),
+            obs_win: self.obs_win.shallow_clone(),
+            act_win: self.act_win.shallow_clone(),
+            rew: self.rew.shallow_clone(),
+            mask: self.mask.shallow_clone(),
+            tail_onehot: self.tail_onehot.shallow_clone(),
+            not_term: self.not_term.shallow_clone(),
+            step_not_done: self.step_not_done.shallow_clone(),
+            boot_coef: self.boot_coef.shallow_clone(),
+            disc: self.disc.shallow_clone(),
+            critic_w: self.critic_w.shallow_clone(),
+            actor_w: self.actor_w.shallow_clone(),
+            scan_len: self.scan_len.clone(),
+            stored: self.stored.as_ref().map(RecState::shallow_clone),
+        }
+    }
+}
+
+impl RdpgAgent {
+    /// Uploads the batch and builds the small index/weight tensors of the update.
+    pub(super) fn prepare(&self, b: &SequenceBatch) -> Prepared {
+        let (n, s, l) = (b.n as i64, b.scan as i64, b.opt as i64);
+        let (d, a) = (b.obs_dim as i64, b.act_dim as i64);
+        let up = |v: &[f32], shape: &[i64]| -> Tensor {
+            Tensor::from_slice(v)
+                .view(shape)
+                .to_kind(self.kind)
+                .to_device(self.device)
+        };
+        let up64 = |v: Vec<f64>, shape: &[i64]| -> Tensor {
+            Tensor::from_slice(&v)
+                .view(shape)
+                .to_kind(self.kind)
+                .to_device(self.device)
+        };
+        let obs = up(&b.obs, &[n, s + l + 1, d]);
+        let actions = up(&b.actions, &[n, s + l, a]);
+        let rewards = up(&b.rewards, &[n, s + l]);
+        let gamma = self.cfg.gamma;
+        let u = self.cfg.update_len.min(b.opt);
+        let (nn, ll) = (b.n, b.opt);
+        // lambda^i / sum_{j<u} lambda^j on the first u steps, shared by all windows (padded
+        // steps drop out, short windows are not renormalised): rdpg-core's reference.
+        let td_w = interpolated_td_weights_padded(ll, u, self.cfg.lambda);
+        let mut onehot = vec![0.0; nn * (ll + 1)];
+        let mut mask = vec![0.0; nn * ll];
+        let mut boot_coef = vec![0.0; nn * ll];
+        let mut critic_w = vec![0.0; nn * ll];
+        let mut actor_w = vec![0.0; nn * ll];
+        let mut not_term = vec![0.0; nn];
+        let mut step_not_done = vec![1.0; nn * ll];
+        for i in 0..nn {
+            let len = b.opt_len[i];
+            onehot[i * (ll + 1) + len] = 1.0;
+            not_term[i] = 1.0 - f64::from(b.tail_terminated[i]);
+            step_not_done[i * ll + len - 1] = not_term[i];
+            for j in 0..len {
+                mask[i * ll + j] = 1.0;
+                boot_coef[i * ll + j] = gamma.powi((len - j) as i32);
+                actor_w[i * ll + j] = 1.0 / len as f64;
+                critic_w[i * ll + j] = td_w[j];
+            }
+        }
+        // disc[k, i] = gamma^(k - i) for k >= i: (r * mask) @ disc = discounted reward sums.
+        let mut disc = vec![0.0; ll * ll];
+        for k in 0..ll {
+            for i in 0..=k {
+                disc[k * ll + i] = gamma.powi((k - i) as i32);
+            }
+        }
+        // The stored acting-time state of each window's first step (its first scan step, or
+        // with `s = 0` its first optimisation step: R2D2's "stored state, no burn-in").
+        let stored = match (&b.stored_state, self.cfg.burn_in_from_stored_state) {
+            (Some(st), true) => {
+                let h = self.actor.core.state_width();
+                let t = up(st, &[n, 2 * h]);
+                Some(RecState {
+                    h: t.narrow(1, 0, h).unsqueeze(0).contiguous(),
+                    c: t.narrow(1, h, h).unsqueeze(0).contiguous(),
+                })
+            }
+            _ => None,
+        };
+        Prepared {
+            n,
+            s,
+            l,
+            u: u as i64,
+            obs_scan: obs.narrow(1, 0, s),
+            act_scan: actions.narrow(1, 0, s),
+            obs_win: obs.narrow(1, s, l + 1),
+            act_win: actions.narrow(1, s, l),
+            rew: rewards.narrow(1, s, l),
+            mask: up64(mask, &[n, l]),
+            tail_onehot: up64(onehot, &[n, l + 1]),
+            not_term: up64(not_term, &[n]),
+            step_not_done: up64(step_not_done, &[n, l]),
+            boot_coef: up64(boot_coef, &[n, l]),
+            disc: up64(disc, &[l, l]),
+            critic_w: up64(critic_w, &[n, l]),
+            actor_w: up64(actor_w, &[n, l]),
+            scan_len: b.scan_len.clone(),
+            stored,
+        }
+    }
+}
