@@ -884,6 +884,7 @@ impl RunLog {
                     time_limit_rate: 0.0,
                     returns: Vec::new(),
                     lengths: Vec::new(),
+                    obstacles: Default::default(),
                 }),
             }
             log.wall_offset = m.wall();

@@ -2,6 +2,7 @@
 //! `rdpg_agents::{new_trainer, load_trainer, load_policy}`, into and out of run directories
 //! ([`crate::rundir`]).
 
+use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -643,6 +644,10 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         time_limit_rate: f64,
         returns: &'a [f64],
         lengths: &'a [usize],
+        /// Walkers: per obstacle kind, obstacles passed and episodes that fell or got stuck
+        /// at one (`none`: away from any obstacle).
+        #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+        obstacles: &'a BTreeMap<String, rdpg_agents::common::ObstacleRecord>,
     }
     let line = Line {
         run: a.run.display().to_string(),
@@ -657,6 +662,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         time_limit_rate: r.time_limit_rate,
         returns: &r.returns,
         lengths: &r.lengths,
+        obstacles: &r.obstacles,
     };
     println!("{}", serde_json::to_string(&line)?);
     Ok(())

@@ -15,6 +15,44 @@ pub struct EnvInfo {
     /// The reward the stock Gymnasium environment would have given for this step, when the
     /// environment was configured with a different reward (e.g. the paper's).
     pub stock_reward: Option<f64>,
+    /// For walkers: where the hull is on its course, reported with every step (the last
+    /// step's tells where an episode ended).
+    pub course: Option<Course>,
+}
+
+/// The kinds of obstacle on a walker's course (BipedalWalkerHardcore-v3's terrain generator).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Obstacle {
+    /// A square stump, 1 or 2 terrain steps high.
+    Stump = 0,
+    /// A staircase of 3 or 4 steps, up or down.
+    Stairs = 1,
+    /// A pit between two walls.
+    Pit = 2,
+}
+
+impl Obstacle {
+    /// Every kind, in the order of [`Course::passed`] (`kind as usize` is its index).
+    pub const ALL: [Obstacle; 3] = [Obstacle::Stump, Obstacle::Stairs, Obstacle::Pit];
+
+    /// Lower-case name: `stump`, `stairs` or `pit`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Obstacle::Stump => "stump",
+            Obstacle::Stairs => "stairs",
+            Obstacle::Pit => "pit",
+        }
+    }
+}
+
+/// A walker's place on its course.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Course {
+    /// Obstacles whose far end the hull has passed, per kind in [`Obstacle::ALL`]'s order.
+    pub passed: [u32; 3],
+    /// The obstacle the hull is over or close in front of, if any: where an episode that ends
+    /// on this step ended.
+    pub at: Option<Obstacle>,
 }
 
 /// The result of one [`Env::step`].

@@ -21,7 +21,7 @@ pub mod spin;
 pub mod targets;
 
 pub use batch::SequenceBatch;
-pub use env::{Env, EnvInfo, Step};
+pub use env::{Course, Env, EnvInfo, Obstacle, Step};
 pub use error::EnvError;
 pub use noise::{
     action_distance, ActionNoise, AdaptiveParamNoise, Gaussian, OrnsteinUhlenbeck, OuConfig,

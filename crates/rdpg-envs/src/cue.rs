@@ -136,6 +136,7 @@ impl Env for CueMemory {
                 // Reported on the last step, where an episode's success is read.
                 success: terminated && self.correct,
                 stock_reward: None,
+                course: None,
             },
         })
     }

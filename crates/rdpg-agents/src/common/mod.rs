@@ -20,4 +20,6 @@ pub use policy::{
     evaluate_policy, evaluate_policy_traced, to_env_action, DeterministicPolicy, EpisodeTrace,
 };
 pub use tensor::DeviceSpec;
-pub use trainer::{EpisodeRecord, EvalRecord, Quiet, TrainObserver, Trainer, UpdateStats};
+pub use trainer::{
+    EpisodeRecord, EvalRecord, ObstacleRecord, Quiet, TrainObserver, Trainer, UpdateStats,
+};

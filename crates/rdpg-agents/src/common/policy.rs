@@ -1,7 +1,9 @@
 //! Trained policies acting deterministically, whatever the algorithm, and their evaluation.
 
 use crate::common::config::TrainConfig;
-use crate::common::trainer::EvalRecord;
+use std::collections::BTreeMap;
+
+use crate::common::trainer::{EvalRecord, ObstacleRecord};
 use crate::error::{AgentError, Result};
 
 /// A trained policy acting deterministically on one environment (evaluation, recording,
@@ -93,6 +95,7 @@ pub fn evaluate_policy_traced(
     let mut returns = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
     let mut lengths = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
     let (mut successes, mut time_limits) = (0, 0);
+    let mut obstacles: BTreeMap<String, ObstacleRecord> = BTreeMap::new();
     let mut actions = Vec::new();
     for ep_seed in episode_seeds(seed, episodes)? {
         let (mut obs, _) = env.reset(Some(ep_seed))?;
@@ -107,6 +110,9 @@ pub fn evaluate_policy_traced(
             if s.done() {
                 successes += s.info.success as usize;
                 time_limits += (s.truncated && !s.terminated) as usize;
+                if let Some(c) = s.info.course {
+                    note_course(&mut obstacles, &c, &s);
+                }
                 break;
             }
             obs = s.obs;
@@ -130,7 +136,29 @@ pub fn evaluate_policy_traced(
         time_limit_rate: time_limits as f64 / m,
         returns,
         lengths,
+        obstacles,
     })
+}
+
+/// Adds a finished walker episode to the per-obstacle counts: the obstacles it passed, and
+/// where it ended unless it finished the course (`none`: away from any obstacle).
+fn note_course(
+    obstacles: &mut BTreeMap<String, ObstacleRecord>,
+    c: &rdpg_core::Course,
+    last: &rdpg_core::Step,
+) {
+    for o in rdpg_core::Obstacle::ALL {
+        obstacles.entry(o.as_str().into()).or_default().passed += u64::from(c.passed[o as usize]);
+    }
+    if !last.info.success {
+        let at = c.at.map_or("none", |o| o.as_str());
+        let r = obstacles.entry(at.into()).or_default();
+        if last.terminated {
+            r.fell += 1;
+        } else {
+            r.stuck += 1;
+        }
+    }
 }
 
 #[cfg(test)]
@@ -167,5 +195,22 @@ mod tests {
         let r = eval("CueMemory-v0", vec![1.0], 4);
         assert_eq!(r.time_limit_rate, 0.0);
         assert_eq!(r.lengths, [6; 4]);
+    }
+
+    /// On Hardcore every episode ends somewhere on the course: the per-obstacle counts of
+    /// falls and stuck episodes, with the successes, add up to the episodes, and a walker
+    /// that falls at once has passed nothing. Other envs report no course.
+    #[test]
+    fn evaluation_counts_falls_per_obstacle() {
+        // Both hips and knees driven hard: the walker falls within a few steps of the start.
+        let r = eval("BipedalWalkerHardcore-v3", vec![1.0, -1.0, 1.0, -1.0], 3);
+        let ended: u64 = r.obstacles.values().map(|o| o.fell + o.stuck).sum();
+        let successes = (r.success_rate * 3.0).round() as u64;
+        assert_eq!(ended + successes, 3, "{:?}", r.obstacles);
+        assert_eq!(r.obstacles["none"].fell, 3, "{:?}", r.obstacles);
+        for o in ["stump", "stairs", "pit"] {
+            assert_eq!(r.obstacles[o].passed, 0);
+        }
+        assert!(eval("Pendulum-v1", vec![0.0], 1).obstacles.is_empty());
     }
 }

@@ -3,6 +3,7 @@
 //! [`crate::load_trainer`]), the progress callbacks of [`TrainObserver`] and the records they
 //! receive.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -77,6 +78,22 @@ pub struct EvalRecord {
     /// Every episode's length in agent steps (of `train.action_repeat` frames each).
     #[serde(default)]
     pub lengths: Vec<usize>,
+    /// Walker courses: how the episodes fared at each kind of obstacle (`stump`, `stairs`,
+    /// `pit`), and `none` for episodes that ended away from any obstacle; empty for other
+    /// environments.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub obstacles: BTreeMap<String, ObstacleRecord>,
+}
+
+/// How evaluation episodes fared at one kind of obstacle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ObstacleRecord {
+    /// Obstacles of this kind the hull passed, over all episodes.
+    pub passed: u64,
+    /// Episodes that ended by a fall at one (the hull over it or just in front of it).
+    pub fell: u64,
+    /// Episodes cut by the time limit at one (stuck there).
+    pub stuck: u64,
 }
 
 /// Receives progress from [`Trainer::run`] (metrics files, progress bars, tests).

@@ -35,7 +35,7 @@ use tch::{Kind, Reduction, Tensor};
 
 use super::config::ForkConfig;
 use super::nets::{Actor, Critic};
-use super::update::Prepared;
+use super::prepared::Prepared;
 use crate::common::adam::{Adam, AdamConfig};
 use crate::common::tensor::{init_from_rng, sorted_vars, Activation, Mlp};
 use rdpg_core::rng::NpRng;

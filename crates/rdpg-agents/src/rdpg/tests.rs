@@ -1291,7 +1291,7 @@ fn per_step_td0_targets_match_a_direct_computation() {
 #[test]
 fn update_path_gradients_hold_targets_scans_and_states_constant() {
     use super::config::CriticTarget;
-    use super::update::Clock;
+    use super::profile::Clock;
     let cases = [
         (0.0, CriticTarget::TailBootstrap, true),
         (0.1, CriticTarget::TailBootstrap, true),
@@ -1369,7 +1369,7 @@ fn update_path_gradients_hold_targets_scans_and_states_constant() {
 /// by hand in that order, and the two orders differ.
 #[test]
 fn actor_sees_the_critic_in_algorithm_1_order() {
-    use super::update::Clock;
+    use super::profile::Clock;
     let mut losses = Vec::new();
     for updated in [true, false] {
         let cfg = RdpgConfig {
@@ -1763,7 +1763,8 @@ fn fork_models_fit_a_batch_and_switch_the_term_on() {
 /// `N l` with zero rows there, which the matrix product blocks differently.)
 #[test]
 fn critic_on_trained_steps_equals_the_whole_window() {
-    use super::update::{critic_window, Clock};
+    use super::profile::Clock;
+    use super::update::critic_window;
     let ff = RdpgConfig {
         trunk: Trunk::Mlp { hidden: vec![16] },
         recurrent: false,

@@ -20,9 +20,11 @@ use super::agent::RdpgAgent;
 use super::fork::{ForkModels, ModelStep};
 use super::lstm::RecState;
 use super::nets::Critic;
+use super::prepared::Prepared;
+use super::profile::Clock;
 use super::update::{
     actor_states, critic_loss_from, scan_actor, scan_critic, soft_update, tail_action, target_q,
-    td_targets, trained_q, Clock, Prepared, Scanned,
+    td_targets, trained_q, Scanned,
 };
 use crate::common::side_thread::SideThread;
 use crate::common::UpdateStats;

@@ -58,8 +58,8 @@ use super::config::{CriticTarget, ScanMethod};
 use super::fork::ModelStep;
 use super::lstm::{scan_state, RecState};
 use super::nets::{Actor, Critic};
-pub(super) use super::prepared::Prepared;
-pub(super) use super::profile::Clock;
+use super::prepared::Prepared;
+use super::profile::Clock;
 use crate::common::UpdateStats;
 
 impl Scanned {

@@ -562,6 +562,9 @@ impl Env for BipedalWalker {
                 info: EnvInfo {
                     success,
                     stock_reward,
+                    course: self
+                        .hull_position()
+                        .map(|h| self.terrain.course_at(f64::from(h[0]))),
                 },
             })
         })

@@ -7,6 +7,7 @@ use super::{
 };
 use rdpg_box2d::{BodyKind, FixtureDef, PhysicsError, World};
 use rdpg_core::rng::NpRng;
+use rdpg_core::{Course, Obstacle};
 
 const FRICTION: f32 = 2.5;
 /// Gymnasium draws clouds with `3.14`, not π: keep it for identical cloud shapes.
@@ -27,6 +28,16 @@ pub enum TerrainKind {
 }
 
 impl TerrainKind {
+    /// The obstacle this state draws (none for grass).
+    fn obstacle(self) -> Option<Obstacle> {
+        match self {
+            Self::Grass => None,
+            Self::Stump => Some(Obstacle::Stump),
+            Self::Stairs => Some(Obstacle::Stairs),
+            Self::Pit => Some(Obstacle::Pit),
+        }
+    }
+
     fn from_index(i: i64) -> Self {
         match i {
             1 => Self::Stump,
@@ -48,7 +59,14 @@ pub(crate) struct Terrain {
     pub obstacles: Vec<Vec<[f64; 2]>>,
     /// Clouds: polygon, min x, max x.
     pub clouds: Vec<(Vec<[f64; 2]>, f64, f64)>,
+    /// Each obstacle's kind and x extent `[from, to)`: the terrain points the generator spent
+    /// in its state, in course order.
+    pub spans: Vec<(Obstacle, f64, f64)>,
 }
+
+/// How far in front of an obstacle a hull counts as being at it (metres): about the hull's
+/// length, so that a walker that trips while stepping onto it is counted there.
+const AT_OBSTACLE_AHEAD: f64 = 4.0 * TERRAIN_STEP;
 
 impl Terrain {
     /// Runs the generator, drawing from `rng` exactly as Gymnasium does.
@@ -139,6 +157,12 @@ impl Terrain {
                 // GRASS right after a state change: a flat point, no draw.
                 (TerrainKind::Grass, true) | (TerrainKind::Stump, false) => {}
             }
+            if let Some(o) = state.obstacle() {
+                match (oneshot, t.spans.last_mut()) {
+                    (false, Some(span)) => span.2 = x + TERRAIN_STEP,
+                    _ => t.spans.push((o, x, x + TERRAIN_STEP)),
+                }
+            }
             oneshot = false;
             t.y.push(y);
             counter -= 1;
@@ -153,6 +177,20 @@ impl Terrain {
             }
         }
         t
+    }
+
+    /// Where a hull at `x` is on this course: the obstacles it has passed and the one it is
+    /// over or within [`AT_OBSTACLE_AHEAD`] in front of.
+    pub fn course_at(&self, x: f64) -> Course {
+        let mut c = Course::default();
+        for &(o, from, to) in &self.spans {
+            if to <= x {
+                c.passed[o as usize] += 1;
+            } else if c.at.is_none() && from <= x + AT_OBSTACLE_AHEAD {
+                c.at = Some(o);
+            }
+        }
+        c
     }
 
     /// Creates the static bodies (obstacles in generation order, then the 199 edges) and
@@ -248,5 +286,73 @@ mod tests {
         assert!(hard.y[..TERRAIN_STARTPAD]
             .iter()
             .all(|y| (y - TERRAIN_HEIGHT).abs() < 1e-9));
+    }
+
+    /// The obstacle spans hold the obstacle polygons: one stump each, two walls per pit, 3 or
+    /// 4 stair steps per staircase, every polygon starting inside its span (the last span may
+    /// be cut by the end of the course, past the finish line); grass has none.
+    #[test]
+    fn spans_hold_the_obstacles_they_name() {
+        assert!(Terrain::generate(&mut NpRng::from_seed(0), false)
+            .spans
+            .is_empty());
+        for seed in 0..30 {
+            let t = Terrain::generate(&mut NpRng::from_seed(seed), true);
+            assert!(!t.spans.is_empty());
+            let mut held = 0;
+            for (k, &(o, from, to)) in t.spans.iter().enumerate() {
+                assert!(from < to, "seed {seed}, span {k}");
+                let cut = to >= TERRAIN_LENGTH as f64 * TERRAIN_STEP - 1e-9;
+                let inside = |x: f64| x >= from && (x < to || cut);
+                let starts = t.obstacles.iter().filter(|p| inside(p[0][0])).count();
+                let want = match o {
+                    Obstacle::Stump => 1..=1,
+                    Obstacle::Pit => 2..=2,
+                    Obstacle::Stairs => 3..=4,
+                };
+                assert!(want.contains(&starts), "seed {seed}: {o:?} holds {starts}");
+                held += starts;
+            }
+            assert_eq!(held, t.obstacles.len(), "seed {seed}");
+        }
+    }
+
+    /// `course_at`: obstacles behind the hull are passed; the first one not passed is where
+    /// the hull is if it is over it or within `AT_OBSTACLE_AHEAD` in front of it.
+    #[test]
+    fn course_at_counts_passed_obstacles_and_names_the_one_at_hand() {
+        let t = Terrain {
+            spans: vec![
+                (Obstacle::Stump, 10.0, 11.0),
+                (Obstacle::Pit, 20.0, 23.0),
+                (Obstacle::Stump, 30.0, 31.0),
+            ],
+            ..Terrain::default()
+        };
+        let at = |x| t.course_at(x);
+        assert_eq!(at(0.0), Course::default());
+        assert_eq!(at(10.0 - AT_OBSTACLE_AHEAD).at, Some(Obstacle::Stump));
+        assert_eq!(at(10.5).at, Some(Obstacle::Stump));
+        assert_eq!(
+            at(15.0),
+            Course {
+                passed: [1, 0, 0],
+                at: None
+            }
+        );
+        assert_eq!(
+            at(21.0),
+            Course {
+                passed: [1, 0, 0],
+                at: Some(Obstacle::Pit)
+            }
+        );
+        assert_eq!(
+            at(40.0),
+            Course {
+                passed: [2, 0, 1],
+                at: None
+            }
+        );
     }
 }
