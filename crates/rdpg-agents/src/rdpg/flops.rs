@@ -9,7 +9,8 @@
 //! backward pass with weight and input gradients counts twice its forward pass; the critic
 //! in the actor's loss, held constant, once (input gradients only). Rows are those of the
 //! benchmark's batches, where every window is full (`N` windows, `s` scan steps, `l`
-//! optimisation steps, the critic trained on the first `u`). Work done on the actor's turn
+//! optimisation steps, the critic trained on the first `u`; with shorter windows the count is
+//! an upper bound). Work done on the actor's turn
 //! only (its loss, critic 0's rescan, and with target networks the behaviour actor's scan and
 //! states) is divided by `policy_delay`. FORK's models are not counted.
 
@@ -159,23 +160,25 @@ pub fn update_flops(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> PhaseFl
             * (actors * (actor.trunk() + actor.core())
                 + critics * (critic.trunk() + critic.core()));
     }
-    // 2a. No gradient along the window.
-    let states = rec && !cfg.actor_bptt;
+    // 2a. No gradient along the window: the behaviour actor's states (per-step actor gradient),
+    // mu' and Q' at the tail, or the per-step TD(0) targets (mu' along the window, each target
+    // critic along the replayed actions and one cell step on (o_{i+1}, mu'(o_{i+1}))).
+    let states = if rec && !cfg.actor_bptt {
+        n * l * actor.trunk() + n * (l - 1.0) * actor.core()
+    } else {
+        0.0
+    };
     // Rows of a recurrent network along the window (l + 1 slots), or the tail alone.
     let along = if rec { n * (l + 1.0) } else { n };
-    if targets {
-        if states {
-            f.window_nograd += behaviour * (n * l * actor.trunk() + n * (l - 1.0) * actor.core());
-        }
-        if per_step {
-            f.window_nograd += n * (l + 1.0) * actor.all()
-                + twins * (n * l * (critic.trunk() + critic.core()) + n * l * critic.all());
-        } else {
-            f.window_nograd += along * actor.all() + twins * along * critic.all();
-        }
+    f.window_nograd = if per_step {
+        behaviour * states
+            + n * (l + 1.0) * actor.all()
+            + twins * (n * l * (critic.trunk() + critic.core()) + n * l * critic.all())
+    } else if targets {
+        behaviour * states + along * actor.all() + twins * along * critic.all()
     } else {
-        f.window_nograd += n * (l + 1.0) * actor.all();
-    }
+        n * (l + 1.0) * actor.all() // the behaviour actor's run gives states and mu'(o_tail)
+    };
     // 2b. The critics: forward on the trained steps (through the tail without targets),
     // backward twice that.
     let rows = if targets || per_step {
@@ -184,6 +187,10 @@ pub fn update_flops(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> PhaseFl
         n * (l + 1.0)
     };
     f.critic_step = 3.0 * twins * rows * critic.all();
+    // The actor reading critic 0 before its step: its states along the window, taken then.
+    if rec && !cfg.actor_uses_updated_critic {
+        f.critic_step += turn * (n * l * critic.trunk() + n * (l - 1.0) * critic.core());
+    }
     // 3. Actor's turn: critic 0 rescanned after its step, the actor's loss.
     if rec && cfg.actor_uses_updated_critic {
         f.critic_rescan = turn
@@ -294,6 +301,16 @@ mod tests {
         let win = states + 40.0 * (at + ac + ah) + 2.0 * 40.0 * (ct + cc + ch);
         assert_eq!(f.window_nograd, win);
         assert_eq!(f.critic_step, 3.0 * 2.0 * 30.0 * (ct + cc + ch));
+        // The classic RDPG's per-step TD(0) targets instead of the tail bootstrap.
+        let per_step = RdpgConfig {
+            critic_target: CriticTarget::PerStepTd0,
+            ..rec.clone()
+        };
+        let targets = 40.0 * (at + ac + ah) + 2.0 * (30.0 * (ct + cc) + 30.0 * (ct + cc + ch));
+        assert_eq!(
+            update_flops(&per_step, 4, 2).window_nograd,
+            states + targets
+        );
         assert_eq!(
             f.critic_rescan,
             0.5 * (20.0 * (ct + cc) + 30.0 * ct + 20.0 * cc)

@@ -1,8 +1,10 @@
 //! The recurrent core and the scan it drives.
 //!
-//! * [`Lstm`]: a single-layer LSTM on libtorch's fused kernel for sequences ([`Lstm::seq`])
-//!   and `lstm_cell` for single steps ([`Lstm::cell`]: acting, the per-step actor gradient, the
-//!   states along the window), measured faster for one step and cheaper in backward.
+//! * [`Lstm`]: a single-layer LSTM on libtorch's fused kernel for sequences ([`Lstm::seq`]),
+//!   `lstm_cell` for single steps ([`Lstm::cell`]: acting, the per-step actor gradient),
+//!   measured faster for one step and cheaper in backward, and a loop of cells with the input
+//!   projection of all steps hoisted out for the no-gradient runs that need every step's
+//!   state ([`Core::stepwise`], [`Core::states_before`]).
 //! * [`Core`]: the part between embedding and head, an LSTM (RDPG) or FC + ReLU (DDPG, whose
 //!   state is zero-width and passes through unchanged).
 //! * [`scan_state`]: the no-gradient scan of Algorithm 1 (paper Eq. (scan)) over left-padded

@@ -2,7 +2,9 @@
 //! networks, tail-step bootstrap), bit-identical to the one-thread form.
 //!
 //! The schedule: the second thread (kept for the agent's life, `SideThread`) runs critic 1's
-//! scan and its target's and the target actor's scan (step 1), the behaviour actor's states,
+//! scan and its target's and, on the actor's turn, the target actor's scan (step 1; on the
+//! other updates the behaviour actor is not scanned and the target actor is scanned here),
+//! the behaviour actor's states (on the actor's turn),
 //! target critic 1's tail value and critic 1's forward and backward pass (step 2), then
 //! critic 1's Adam step and, on the actor's turn, its target's soft update, until the end of
 //! the update (nothing after step 2 reads critic 1). This thread does the rest in the order of
@@ -190,7 +192,8 @@ impl RdpgAgent {
     /// critic 0 here and 1 there; critic 0's TD loss and backward pass here and critic 1's
     /// there (the gradient of the summed loss is the pair of their gradients: the critics share
     /// no parameter). Zeroes the critics' gradients and back-propagates; returns critic 0's
-    /// `Q(o_i, a_i | h_{i-1})` (`[N, l]`, detached), the summed TD loss and the actor's states.
+    /// `Q(o_i, a_i | h_{i-1})` on the trained steps (`[N, u]`, detached), the summed TD loss
+    /// and the actor's states (on the actor's turn).
     fn twin_critic_gradients(
         &mut self,
         p: &Prepared,

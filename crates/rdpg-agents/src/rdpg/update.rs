@@ -41,6 +41,9 @@
 //! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
 //! critic steps every time.
 //!
+//! With target networks the behaviour actor's scan and its states along the window serve step
+//! 3 alone: they run on the actor's turns only.
+//!
 //! With `parallel_twins` the same update runs on two threads (`twins.rs`): the second critic's
 //! share of steps 1 and 2 (its scan and its target's, the target actor's scan, the behaviour
 //! actor's states, target critic 1's value, critic 1's forward and backward pass), critic 1's
@@ -249,48 +252,56 @@ impl RdpgAgent {
 
     /// Step 2 of the update: `Q(o_i, a_i | h_{i-1})` of every critic on the trained steps, with
     /// gradient (`[N, u]` each), and their targets `y` (`[N, l]`) and the actor's states along
-    /// the window (per-step actor gradient), both without gradient:
+    /// the window (per-step actor gradient, on the actor's turns), both without gradient:
     ///
-    /// 2a. the behaviour actor along the window from its scanned state gives its states and the
-    ///     bootstrap action `mu'(o_tail)` (+ TD3 smoothing noise); with target networks also
-    ///     `Q'(o_tail, mu'(o_tail))`;
-    /// 2b. the tail-step bootstrap of the interpolated TD (Eq. (unsyncedinterpolatedTD)), or
-    ///     the classic RDPG's per-step TD(0) (Heess et al. 2015).
+    /// 2a. the bootstrap action `mu'(o_tail)` (+ TD3 smoothing noise) from the target actor's
+    ///     run along the window (the behaviour actor's without target networks), with target
+    ///     networks `Q'(o_tail, mu'(o_tail))`, and the behaviour actor's states;
+    /// 2b. the tail-step bootstrap of the interpolated TD (Eq. (unsyncedinterpolatedTD)); or,
+    ///     instead of 2a and 2b, the classic RDPG's per-step TD(0) (Heess et al. 2015).
     pub(super) fn critic_objective(
         &mut self,
         p: &Prepared,
         sc: &Scanned,
         clock: &mut Clock,
     ) -> (Vec<Tensor>, Tensor, Option<(Tensor, Tensor)>) {
-        let (actor_states, mut a_tail) = tch::no_grad(|| self.actor_window(p, sc));
-        if let Some(noise) = self.cfg.target_noise {
-            a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
-        }
-        let target_q_tail = tch::no_grad(|| self.target_tail_q(p, sc, &a_tail));
-        clock.lap(|t| &mut t.window_nograd);
-        let (q_sa, y) = match self.cfg.critic_target {
+        match self.cfg.critic_target {
             CriticTarget::TailBootstrap => {
+                let (actor_states, mut a_tail) = tch::no_grad(|| self.actor_window(p, sc));
+                if let Some(noise) = self.cfg.target_noise {
+                    a_tail = self.smooth_target_action(&a_tail, noise.std, noise.clip);
+                }
+                let target_q_tail = tch::no_grad(|| self.target_tail_q(p, sc, &a_tail));
+                clock.lap(|t| &mut t.window_nograd);
                 let (q_sa, q_tail) = self.critic_forward(p, sc, &a_tail, target_q_tail);
-                (q_sa, tch::no_grad(|| td_targets(p, &q_tail))) // [N, l]
+                let y = tch::no_grad(|| td_targets(p, &q_tail)); // [N, l]
+                (q_sa, y, actor_states)
             }
             CriticTarget::PerStepTd0 => {
+                let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+                let actor_states = sc
+                    .actor
+                    .as_ref()
+                    .filter(|_| need_states)
+                    .map(|h| tch::no_grad(|| actor_states(&self.actor, p, h)));
                 let y = tch::no_grad(|| self.per_step_targets(p, sc)); // [N, l]
+                clock.lap(|t| &mut t.window_nograd);
                 let q_sa = self
                     .critics
                     .iter()
                     .zip(&sc.critics)
                     .map(|(c, h)| trained_q(c, p, h))
                     .collect();
-                (q_sa, y)
+                (q_sa, y, actor_states)
             }
-        };
-        (q_sa, y, actor_states)
+        }
     }
 
-    /// Step 2a (call without gradient): runs the behaviour actor along the window (`l + 1`
-    /// slots) from its scanned state. Returns its states before each optimisation step
-    /// (`[N, l, H]` each; only when the actor gradient is per step, i.e. no BPTT) and the
-    /// bootstrap action `mu'(o_tail)`, `[N, A]` (from the target actor when there is one).
+    /// Step 2a (call without gradient): the bootstrap action `mu'(o_tail)`, `[N, A]`, from the
+    /// target actor's run along the window (`l + 1` slots), and the behaviour actor's states
+    /// before each optimisation step (`[N, l, H]` each; only for the per-step actor gradient,
+    /// i.e. no BPTT, on the actor's turn: [`actor_states`]). Without target networks the
+    /// behaviour actor's own run along the window gives both.
     pub(super) fn actor_window(
         &self,
         p: &Prepared,
