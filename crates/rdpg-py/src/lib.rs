@@ -154,13 +154,22 @@ impl Env {
     }
 
     /// Steps with an action (float32 bytes): `(obs bytes, reward, terminated, truncated,
-    /// success, stock_reward)`.
+    /// success, stock_reward, course)`; `course` (walkers): `(obstacle at hand or None,
+    /// stumps, staircases, pits passed)`.
     #[allow(clippy::type_complexity)]
     fn step<'py>(
         &mut self,
         py: Python<'py>,
         action: &[u8],
-    ) -> PyResult<(Bound<'py, PyBytes>, f64, bool, bool, bool, Option<f64>)> {
+    ) -> PyResult<(
+        Bound<'py, PyBytes>,
+        f64,
+        bool,
+        bool,
+        bool,
+        Option<f64>,
+        Option<(Option<&'static str>, u32, u32, u32)>,
+    )> {
         let env = self.env();
         let a = f32s(action, env.action_space().dim(), "action")?;
         check_action(&a, "action")?;
@@ -172,6 +181,10 @@ impl Env {
             s.truncated,
             s.info.success,
             s.info.stock_reward,
+            s.info.course.map(|c| {
+                let [stump, stairs, pit] = c.passed;
+                (c.at.map(|o| o.as_str()), stump, stairs, pit)
+            }),
         ))
     }
 

@@ -71,6 +71,12 @@ def test_options_and_rendering():
     assert obs.shape == (21,)
     _, _, _, _, info = env.step(np.zeros(4, np.float32))
     assert "stock_reward" in info
+    assert info["obstacles_passed"] == {"stump": 0, "stairs": 0, "pit": 0}
+    # Hardcore: standing still at the start, no obstacle at hand; a course has obstacles.
+    env = gym.make("rdpg/BipedalWalkerHardcore-v3")
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(4, np.float32))
+    assert "obstacle" not in info and sum(info["obstacles_passed"].values()) == 0
     env = gym.make("rdpg/BipedalWalker-v3", render_mode="rgb_array")
     env.reset(seed=0)
     frame = env.render()

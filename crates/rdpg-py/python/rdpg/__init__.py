@@ -107,12 +107,19 @@ class RdpgEnv(gym.Env):
         return _f32(obs, self.observation_space.shape), {}
 
     def step(self, action):
-        obs, reward, terminated, truncated, success, stock = self._env.step(
+        obs, reward, terminated, truncated, success, stock, course = self._env.step(
             _action_bytes(action, self.action_space.shape)
         )
         info: dict[str, Any] = {"success": success}
         if stock is not None:
             info["stock_reward"] = stock
+        if course is not None:
+            # Walkers: the stump, staircase or pit the hull is over or just in front of, and
+            # the obstacles passed so far (what `rdpg eval` counts per obstacle kind).
+            at, stump, stairs, pit = course
+            info["obstacles_passed"] = {"stump": stump, "stairs": stairs, "pit": pit}
+            if at is not None:
+                info["obstacle"] = at
         return _f32(obs, self.observation_space.shape), reward, terminated, truncated, info
 
     def render(self):
