@@ -67,13 +67,8 @@ impl RdpgAgent {
         } else {
             self.twin_critic_gradients(&p, &sc, &mut side, &mut clock)
         };
-        if let Some(c) = self.cfg.grad_clip {
-            let _ = self.critic_opt.clip_grad_norm(c);
-        }
-        let actor_turn = self.count_update();
-        let deferred = actor_turn && !self.cfg.actor_uses_updated_critic;
-        let critic_states_before =
-            deferred.then(|| tch::no_grad(|| self.critic_states(&p, &sc.critics[0])));
+        let (actor_turn, critic_states_before) = self.clip_and_count(&p, &sc);
+        let deferred = critic_states_before.is_some();
         let model_step = models_on_side.then(|| {
             let (f, step) = side.finish::<(ForkModels, ModelStep)>();
             self.fork = Some(f);

@@ -103,16 +103,11 @@ impl RdpgAgent {
 
         // ---- 2. Critic: TD gradient (Eq. (unsyncedinterpolatedTD)) and its Adam step. --------
         let (q0, critic_loss, actor_states) = self.critic_gradients(&p, &sc, &mut clock);
-        if let Some(c) = self.cfg.grad_clip {
-            let _ = self.critic_opt.clip_grad_norm(c);
-        }
-        let actor_turn = self.count_update();
+        let (actor_turn, critic_states_before) = self.clip_and_count(&p, &sc);
         // Algorithm 1 order: the actor reads the critic after its step. Otherwise (on the
         // actor's turn) the actor reads the critic as it was and the critic steps after the
         // actor's backward pass.
-        let deferred = actor_turn && !self.cfg.actor_uses_updated_critic;
-        let critic_states_before =
-            deferred.then(|| tch::no_grad(|| self.critic_states(&p, &sc.critics[0])));
+        let deferred = critic_states_before.is_some();
         if !deferred {
             self.critic_opt.step();
         }
@@ -170,10 +165,23 @@ impl RdpgAgent {
         (q_sa[0].detach(), critic_loss, actor_states)
     }
 
-    /// Counts the update; whether it is the actor's turn (TD3's `policy_delay`).
-    pub(super) fn count_update(&mut self) -> bool {
+    /// After step 2's backward pass: clips the critics' gradients (`grad_clip`) and counts the
+    /// update. Returns whether it is the actor's turn (TD3's `policy_delay`) and, when the
+    /// actor reads critic 0 as it was before its step (`actor_uses_updated_critic = false`, on
+    /// the actor's turn), critic 0's states along the window, taken now.
+    pub(super) fn clip_and_count(
+        &mut self,
+        p: &Prepared,
+        sc: &Scanned,
+    ) -> (bool, Option<(Tensor, Tensor)>) {
+        if let Some(c) = self.cfg.grad_clip {
+            let _ = self.critic_opt.clip_grad_norm(c);
+        }
         self.updates += 1;
-        self.updates.is_multiple_of(self.cfg.policy_delay as u64)
+        let actor_turn = self.updates.is_multiple_of(self.cfg.policy_delay as u64);
+        let before = (actor_turn && !self.cfg.actor_uses_updated_critic)
+            .then(|| tch::no_grad(|| self.critic_states(p, &sc.critics[0])));
+        (actor_turn, before)
     }
 
     /// Critic 0's states `h^C_{i-1}` along the window after its Adam step: its scan and its
