@@ -4,7 +4,7 @@
 //!   `lstm_cell` for single steps ([`Lstm::cell`]: acting, the per-step actor gradient),
 //!   measured faster for one step and cheaper in backward, and a loop of cells with the input
 //!   projection of all steps hoisted out for the no-gradient runs that need every step's
-//!   state ([`Core::stepwise`], [`Core::states_before`]).
+//!   state ([`Core::states_after`], [`Core::states_before`], [`Core::stepwise`]).
 //! * [`Core`]: the part between embedding and head, an LSTM (RDPG) or FC + ReLU (DDPG, whose
 //!   state is zero-width and passes through unchanged).
 //! * [`scan_state`]: the no-gradient scan of Algorithm 1 (paper Eq. (scan)) over left-padded
@@ -277,58 +277,58 @@ impl Core {
     }
 
     /// Like [`Core::seq`], one step at a time, also returning the state *before* each step:
-    /// `(out [B, T, H], h_before [B, T, Hs], c_before [B, T, Hs], final state)`. For runs
-    /// without gradient that need the carried states (the per-step actor gradient treats them
-    /// as constants; the per-step TD(0) targets continue from them).
+    /// `(out [B, T, H], h_before [B, T, Hs], c_before [B, T, Hs], final state)`, for runs
+    /// without gradient that need both the outputs and the carried states.
     pub fn stepwise(&self, x: &Tensor, s: &RecState) -> (Tensor, Tensor, Tensor, RecState) {
         let t_len = x.size()[1];
-        match self {
-            Core::Lstm(l) => {
-                let (h0, c0) = (s.h.squeeze_dim(0), s.c.squeeze_dim(0)); // [B, H]
-                let after = l.cells(x, &h0, &c0, t_len);
-                let hs: Vec<&Tensor> = after.iter().map(|(h, _)| h).collect();
-                let cs: Vec<&Tensor> = after.iter().map(|(_, c)| c).collect();
-                let out = Tensor::stack(&hs, 1); // [B, T, H]
-                let before = |first: &Tensor, rest: &[&Tensor]| {
-                    let mut v = vec![first];
-                    v.extend_from_slice(&rest[..rest.len() - 1]);
-                    Tensor::stack(&v, 1)
-                };
-                let (hb, cb) = (before(&h0, &hs), before(&c0, &cs));
-                let (hf, cf) = after.last().expect("at least one step");
-                let fin = RecState {
-                    h: hf.unsqueeze(0),
-                    c: cf.unsqueeze(0),
-                };
-                (out, hb, cb, fin)
-            }
-            Core::Ff(fc, _) => {
-                let z =
-                    s.h.squeeze_dim(0)
-                        .unsqueeze(1)
-                        .expand([-1, t_len, -1], false);
-                (fc.forward(x).relu(), z.copy(), z.copy(), s.shallow_clone())
-            }
-        }
+        let (ha, ca) = self.states_after(x, s);
+        let before = |first: &Tensor, after: &Tensor| {
+            Tensor::cat(&[first.transpose(0, 1), after.narrow(1, 0, t_len - 1)], 1)
+        };
+        let out = match self {
+            Core::Lstm(_) => ha.shallow_clone(), // an LSTM's output is its hidden state
+            Core::Ff(fc, _) => fc.forward(x).relu(),
+        };
+        let fin = RecState {
+            h: ha.select(1, t_len - 1).unsqueeze(0),
+            c: ca.select(1, t_len - 1).unsqueeze(0),
+        };
+        (out, before(&s.h, &ha), before(&s.c, &ca), fin)
+    }
+
+    /// The states after each of the `T` steps of `x [B, T, in]` from `s`, `(h, c)` each
+    /// `[B, T, Hs]` (no gradient). Feed-forward cores: zero-width.
+    pub fn states_after(&self, x: &Tensor, s: &RecState) -> (Tensor, Tensor) {
+        self.states_from(x, s, x.size()[1], false)
     }
 
     /// The states before each of the `T` steps of `x [B, T, in]` from `s`, `(h, c)` each
     /// `[B, T, Hs]` (no gradient; `T - 1` steps computed). Feed-forward cores: zero-width.
     pub fn states_before(&self, x: &Tensor, s: &RecState) -> (Tensor, Tensor) {
-        let t_len = x.size()[1];
+        self.states_from(x, s, x.size()[1] - 1, true)
+    }
+
+    /// The states after `steps` steps of `x` from `s`, stacked on dim 1, preceded by `s` itself
+    /// with `with_first`; zero-width of the same length for a feed-forward core.
+    fn states_from(
+        &self,
+        x: &Tensor,
+        s: &RecState,
+        steps: i64,
+        with_first: bool,
+    ) -> (Tensor, Tensor) {
         let (h0, c0) = (s.h.squeeze_dim(0), s.c.squeeze_dim(0)); // [B, Hs]
         match self {
             Core::Lstm(l) => {
-                let after = l.cells(x, &h0, &c0, t_len - 1);
-                let hs: Vec<&Tensor> = std::iter::once(&h0)
-                    .chain(after.iter().map(|(h, _)| h))
-                    .collect();
-                let cs: Vec<&Tensor> = std::iter::once(&c0)
-                    .chain(after.iter().map(|(_, c)| c))
-                    .collect();
+                let after = l.cells(x, &h0, &c0, steps);
+                let first = with_first.then_some((&h0, &c0));
+                let all = || first.into_iter().chain(after.iter().map(|(h, c)| (h, c)));
+                let hs: Vec<&Tensor> = all().map(|(h, _)| h).collect();
+                let cs: Vec<&Tensor> = all().map(|(_, c)| c).collect();
                 (Tensor::stack(&hs, 1), Tensor::stack(&cs, 1))
             }
             Core::Ff(..) => {
+                let t_len = steps + i64::from(with_first);
                 let z = h0.unsqueeze(1).expand([-1, t_len, -1], false).copy();
                 (z.shallow_clone(), z)
             }

@@ -415,14 +415,11 @@ impl RdpgAgent {
             .map(|(c, h)| {
                 // States after each replayed step i = before slot i + 1: [N, l, H].
                 let x = c.input_seq(&p.obs_win.narrow(1, 0, l), &p.act_win);
-                let (_, hb, cb, fin) = c.core.stepwise(&x, h);
-                let after = |before: &Tensor, last: &Tensor| {
-                    Tensor::cat(&[before.narrow(1, 1, l - 1), last.transpose(0, 1)], 1)
-                };
-                let hc = hb.size()[2];
+                let (ha, ca) = c.core.states_after(&x, h);
+                let hc = ha.size()[2];
                 let st = RecState {
-                    h: after(&hb, &fin.h).reshape([1, n * l, hc]),
-                    c: after(&cb, &fin.c).reshape([1, n * l, hc]),
+                    h: ha.reshape([1, n * l, hc]),
+                    c: ca.reshape([1, n * l, hc]),
                 };
                 let (q, _) = c.step(
                     &next_obs.reshape([n * l, d]),
