@@ -209,16 +209,16 @@ fn invalid_train_configs_name_the_field() {
 /// against the run's environment, and rejected clearly when corrupt.
 #[test]
 fn experience_injection_loads_teachers_under_the_cap() {
-    use rdpg_agents::rdpg::inject::{record, InjectionConfig, TeacherFile};
+    use rdpg_agents::rdpg::inject::{record, InjectionConfig, TeacherFile, TeacherInfo};
     let (train, mut off, agent) = small();
     let teacher_agent = rdpg_agents::RdpgAgent::new(agent.clone(), 2, 1, 5).unwrap();
     let mut policy = rdpg_agents::rdpg::RdpgPolicy::new(&teacher_agent);
-    let t = record(&mut policy, &train, 12, 77, 0.3, "test").unwrap();
+    let t = record(&mut policy, &train, 12, 77, 0.3, TeacherInfo::default()).unwrap();
     assert_eq!(t.episodes.len(), 12);
     assert!(t
         .episodes
         .iter()
-        .all(|e| e.len() == 200 && e.truncated && !e.terminated));
+        .all(|e| e.steps(1) == 200 && e.truncated && !e.terminated));
     let path = tmp("teacher.bin");
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
     t.save(&path).unwrap();
@@ -332,7 +332,7 @@ fn any_algorithm_through_the_trainer_trait() {
 /// `n` windows, as logged in each update's statistics.
 #[test]
 fn injected_experience_outlives_the_agents_fifo() {
-    use rdpg_agents::rdpg::inject::{record, InjectionConfig};
+    use rdpg_agents::rdpg::inject::{record, InjectionConfig, TeacherInfo};
     use rdpg_agents::rdpg::RdpgPolicy;
     use rdpg_agents::{TrainObserver, UpdateStats};
 
@@ -360,7 +360,7 @@ fn injected_experience_outlives_the_agents_fifo() {
         50,
         9,
         0.2,
-        "t",
+        TeacherInfo::default(),
     )
     .unwrap();
     let path = tmp("cue-teacher.bin");
@@ -535,4 +535,198 @@ fn final_observations_and_truncation_reach_the_replay() {
     seen.sort();
     seen.dedup();
     assert_eq!(seen.len(), 6);
+}
+
+/// Teacher files hold seeds and actions: a student replays them through its own env options
+/// (another reward, a fall penalty, the previous action in front of its observation) and gets
+/// its own view of the same episodes, checked against the recorded stock return; what cannot
+/// be rebuilt, and a changed, damaged or old file, is refused saying why.
+#[test]
+fn teacher_episodes_replay_in_the_students_own_view() {
+    use rdpg_agents::common::to_env_action;
+    use rdpg_agents::rdpg::inject::{record, TeacherFile, TeacherInfo};
+    use rdpg_agents::rdpg::RdpgPolicy;
+    let teacher_cfg = TrainConfig {
+        env: "BipedalWalker-v3".into(),
+        ..TrainConfig::default()
+    };
+    let (_, _, agent) = small();
+    let teacher_agent = rdpg_agents::RdpgAgent::new(agent, 24, 4, 3).unwrap();
+    let path = tmp("walker-teacher.bin");
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    record(
+        &mut RdpgPolicy::new(&teacher_agent),
+        &teacher_cfg,
+        3,
+        40,
+        0.5,
+        TeacherInfo::default(),
+    )
+    .unwrap()
+    .save(&path)
+    .unwrap();
+    let t = TeacherFile::load(&path).unwrap();
+    assert_eq!(
+        (t.env.as_str(), t.action_repeat, t.act_dim),
+        ("BipedalWalker-v3", 1, 4)
+    );
+    assert_eq!(t.teacher.train_reward, "stock");
+
+    // The teacher's own view: its stock rewards add up to the recorded returns.
+    let own = t.episodes_for(&teacher_cfg, &path).unwrap();
+    for (e, te) in own.iter().zip(&t.episodes) {
+        assert!(e.injected && e.states.is_empty());
+        assert_eq!((e.len(), &e.actions), (te.steps(4), &te.actions));
+        let ret: f64 = e.rewards.iter().map(|&r| f64::from(r)).sum();
+        assert!(
+            (ret - te.stock_return).abs() < 1e-3,
+            "{ret} {}",
+            te.stock_return
+        );
+    }
+    // A student on the paper's reward, with a fall penalty of -10 and the previous action in
+    // front of its observation: the same episodes, seen its way.
+    let student = TrainConfig {
+        reward: rdpg_envs::WalkerReward::Paper,
+        fall_penalty: Some(-10.0),
+        prev_action_obs: true,
+        ..teacher_cfg.clone()
+    };
+    let theirs = t.episodes_for(&student, &path).unwrap();
+    let mut falls = 0;
+    for (s, o) in theirs.iter().zip(&own) {
+        assert_eq!(
+            (s.len(), s.terminated, s.truncated),
+            (o.len(), o.terminated, o.truncated)
+        );
+        for k in 0..=s.len() {
+            let row = &s.obs[k * 28..(k + 1) * 28];
+            assert_eq!(&row[4..], &o.obs[k * 24..(k + 1) * 24], "step {k}");
+            // The previous action as the env applied it (mapped onto its action space).
+            let prev = if k == 0 {
+                vec![0.0; 4]
+            } else {
+                to_env_action(&o.actions[(k - 1) * 4..k * 4], &[-1.0; 4], &[1.0; 4])
+            };
+            assert_eq!(&row[..4], &prev[..], "step {k}");
+        }
+        assert_ne!(s.rewards, o.rewards);
+        if o.terminated {
+            falls += 1;
+            assert_eq!(
+                (*s.rewards.last().unwrap(), *o.rewards.last().unwrap()),
+                (-10.0, -100.0)
+            );
+        }
+    }
+    assert!(
+        falls > 0,
+        "no teacher episode fell: the fall penalty went unchecked"
+    );
+
+    // Another action repeat or env cannot be rebuilt: refused, naming both sides.
+    let repeat3 = TrainConfig {
+        action_repeat: 3,
+        ..teacher_cfg.clone()
+    };
+    let err = t.episodes_for(&repeat3, &path).unwrap_err().to_string();
+    assert!(
+        err.contains("action repeat 1") && err.contains("uses 3"),
+        "{err}"
+    );
+    let hardcore = TrainConfig {
+        env: "BipedalWalkerHardcore-v3".into(),
+        ..teacher_cfg.clone()
+    };
+    let err = t.episodes_for(&hardcore, &path).unwrap_err().to_string();
+    assert!(
+        err.contains("recorded on BipedalWalker-v3") && err.contains("BipedalWalkerHardcore-v3"),
+        "{err}"
+    );
+    // An episode that no longer replays to its record is refused, naming it and both values.
+    let mut changed = t.clone();
+    changed.episodes[1].stock_return += 1.0;
+    let err = changed
+        .episodes_for(&teacher_cfg, &path)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("episode 1 (seed 41)")
+            && err.contains(&format!("{:.6}", t.episodes[1].stock_return))
+            && err.contains(&format!("{:.6}", changed.episodes[1].stock_return)),
+        "{err}"
+    );
+    // A flipped byte, a cut file, a format-1 file and another kind of file are refused.
+    let bytes = std::fs::read(&path).unwrap();
+    let bad = tmp("bad-teacher.bin");
+    std::fs::create_dir_all(bad.parent().unwrap()).unwrap();
+    let mut flipped = bytes.clone();
+    *flipped.last_mut().unwrap() ^= 1;
+    let mut v1 = 15u64.to_le_bytes().to_vec();
+    v1.extend_from_slice(b"rdpg-teacher-v1");
+    v1.extend_from_slice(&[0; 64]);
+    for (content, needle) in [
+        (flipped, "CRC-32"),
+        (bytes[..bytes.len() - 10].to_vec(), "truncated"),
+        (bytes[..10].to_vec(), "truncated"),
+        (v1, "format 1"),
+        (b"{\"name\": 1}".to_vec(), "not a teacher file"),
+    ] {
+        std::fs::write(&bad, content).unwrap();
+        let err = TeacherFile::load(&bad).unwrap_err().to_string();
+        assert!(err.contains(needle), "{needle}: {err}");
+    }
+}
+
+/// A student that starts windows from stored states gets, for each teacher episode, its own
+/// actor's states from a zero state at the episode's start: what acting along it gives.
+#[test]
+fn stored_state_students_get_their_own_states_for_teacher_episodes() {
+    use rdpg_agents::rdpg::inject::{record, InjectionConfig, TeacherInfo};
+    use rdpg_agents::rdpg::RdpgPolicy;
+    let (train, mut off, mut agent) = small();
+    let teacher_agent = rdpg_agents::RdpgAgent::new(agent.clone(), 2, 1, 5).unwrap();
+    let path = tmp("stored-state-teacher.bin");
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    record(
+        &mut RdpgPolicy::new(&teacher_agent),
+        &train,
+        2,
+        7,
+        0.3,
+        TeacherInfo::default(),
+    )
+    .unwrap()
+    .save(&path)
+    .unwrap();
+    off.injection = Some(InjectionConfig {
+        teachers: vec![path],
+        initial_share: 0.5,
+        anneal_steps: 500,
+        max_fraction: 0.3,
+    });
+    agent.burn_in_from_stored_state = true;
+    let tr = OffPolicyTrainer::new(train, off, agent).unwrap();
+    let a = tr.agent();
+    let (od, sd) = (a.obs_dim(), a.state_dim());
+    let injected: Vec<_> = tr
+        .replay()
+        .episodes()
+        .into_iter()
+        .filter(|e| e.injected)
+        .collect();
+    assert_eq!(injected.len(), 2);
+    for ep in injected {
+        assert_eq!(ep.states.len(), ep.len() * sd);
+        let mut st = a.initial_state(1);
+        for k in 0..ep.len() {
+            let want = st.env_state(0);
+            let got = &ep.states[k * sd..(k + 1) * sd];
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g - w).abs() <= 1e-5, "step {k}: {g} vs {w}");
+            }
+            a.act(&ep.obs[k * od..(k + 1) * od], &mut st).unwrap();
+        }
+        assert!(ep.states[sd..].iter().any(|&x| x != 0.0));
+    }
 }

@@ -209,9 +209,13 @@ fn table(runs: &[Run]) -> String {
         });
         let _ = writeln!(
             t,
-            "| {} ({}) | {} | {} | {} | {:.0} s | {} | {} | {} | {} | {} | {} |",
+            "| {} ({}{}) | {} | {} | {} | {:.0} s | {} | {} | {} | {} | {} | {} |",
             r.label,
             s.algo,
+            s.teachers
+                .iter()
+                .map(|t| format!("; taught by {}", t.label()))
+                .collect::<String>(),
             s.env,
             if s.eval_reward == "stock" {
                 s.train_reward.clone()

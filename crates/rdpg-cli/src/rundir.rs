@@ -24,6 +24,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rdpg_agents::rdpg::inject::{TeacherFile, TeacherInfo};
 use rdpg_agents::{DeterministicPolicy, EvalRecord, UpdateStats};
 use serde::{Deserialize, Serialize};
 use syntaxdot_summary::SummaryWriter;
@@ -99,6 +100,23 @@ impl RunDir {
     /// `summary.json`.
     pub fn summary(&self) -> PathBuf {
         self.root.join("summary.json")
+    }
+
+    /// `teachers.json`: the teachers of a run with experience injection
+    /// ([`TeacherSummary`]), written when it starts.
+    pub fn teachers(&self) -> PathBuf {
+        self.root.join("teachers.json")
+    }
+
+    /// The run's teachers (none without `teachers.json`).
+    pub fn read_teachers(&self) -> Result<Vec<TeacherSummary>> {
+        let path = self.teachers();
+        if !path.exists() {
+            return Ok(Vec::new());
+        }
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        serde_json::from_str(&text).with_context(|| format!("{}: bad teacher list", path.display()))
     }
 
     /// `metrics.jsonl`.
@@ -654,6 +672,9 @@ pub struct Summary {
     /// seeds that chose it), written when the run reaches its budget.
     #[serde(default)]
     pub test_eval: Option<TestSummary>,
+    /// The teachers of experience injection (none without injection).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub teachers: Vec<TeacherSummary>,
     /// The machine that wrote this summary (the last session of the run), see
     /// [`machine_description`].
     #[serde(default)]
@@ -699,6 +720,50 @@ pub fn meminfo_bytes(key: &str) -> Option<u64> {
         .parse::<u64>()
         .ok()
         .map(|kb| kb * 1024)
+}
+
+/// A teacher of a run with experience injection, as its [`Summary`] and every table that
+/// shows it name it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TeacherSummary {
+    /// The teacher file, as the run's config lists it.
+    pub file: String,
+    /// Who recorded it: run, experiment, algorithm, agent, training reward, its own test.
+    #[serde(flatten)]
+    pub teacher: TeacherInfo,
+    /// Episodes in the file.
+    pub episodes: usize,
+    /// Their mean stock return.
+    pub mean_stock_return: f64,
+    /// Gaussian action noise while recording.
+    pub noise_sigma: f64,
+}
+
+impl TeacherSummary {
+    /// Reads the teacher file `path` (checked as a student's load checks it).
+    pub fn read(path: &Path) -> Result<Self> {
+        let t = TeacherFile::load(path)?;
+        Ok(Self {
+            file: path.display().to_string(),
+            episodes: t.episodes.len(),
+            mean_stock_return: t.episodes.iter().map(|e| e.stock_return).sum::<f64>()
+                / t.episodes.len() as f64,
+            noise_sigma: t.noise_sigma,
+            teacher: t.teacher,
+        })
+    }
+
+    /// In words: `hardcore-td3-paper (ddpg, best; test 245.5 ± 62.5 stock, 100 ep.)`.
+    pub fn label(&self) -> String {
+        let t = &self.teacher;
+        let test = t.test.map_or("no test".into(), |x| {
+            format!(
+                "test {:.1} ± {:.1} stock, {} ep.",
+                x.mean_stock_return, x.std_stock_return, x.episodes
+            )
+        });
+        format!("{} ({}, {}; {test})", t.name, t.algo, t.checkpoint)
+    }
 }
 
 /// The test evaluation in [`Summary`].
@@ -769,6 +834,8 @@ pub struct RunLog {
     pub updates: UpdateSums,
     /// The final test evaluation, once made.
     pub test_eval: Option<TestSummary>,
+    /// The run's teachers (`teachers.json`).
+    teachers: Vec<TeacherSummary>,
     /// TensorBoard scalars (`tb/`), written as metrics arrive.
     tb: SummaryWriter<File>,
 }
@@ -861,6 +928,7 @@ impl RunLog {
             stop,
             updates,
             test_eval: None,
+            teachers: dir.read_teachers()?,
             tb,
         };
         for m in old {
@@ -1052,6 +1120,7 @@ impl RunLog {
             last_eval: self.last_eval.as_ref().map(EvalSummary::from),
             best_eval: self.best_eval.as_ref().map(EvalSummary::from),
             test_eval: self.test_eval,
+            teachers: self.teachers.clone(),
             machine: Some(machine_description()),
         }
     }

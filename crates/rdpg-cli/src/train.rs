@@ -12,12 +12,13 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use rdpg_agents::common::checkpoint::seal;
 use rdpg_agents::common::{evaluate_policy, evaluate_policy_traced, EpisodeTrace};
+use rdpg_agents::rdpg::inject::{TeacherInfo, TeacherTest};
 use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats};
 use serde::Serialize;
 
 use crate::experiment::Experiment;
 use crate::rundir::{
-    copy_agent, eval_metric, write_json, Metric, RunDir, RunLog, TestSummary, Which,
+    copy_agent, eval_metric, write_json, Metric, RunDir, RunLog, TeacherSummary, TestSummary, Which,
 };
 
 /// Arguments of `rdpg train`.
@@ -344,6 +345,15 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         std::fs::write(run.config(), exp.to_toml()?)
             .with_context(|| format!("writing {}", run.config().display()))?;
+        let teachers = exp
+            .off_policy
+            .iter()
+            .flat_map(|o| o.injection.iter().flat_map(|i| &i.teachers))
+            .map(|p| TeacherSummary::read(p))
+            .collect::<Result<Vec<_>>>()?;
+        if !teachers.is_empty() {
+            write_json(&run.teachers(), &teachers)?;
+        }
         (run, exp, trainer, lock)
     };
     let total = exp.train.total_steps;
@@ -507,32 +517,52 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     if !(a.noise.is_finite() && a.noise >= 0.0) {
         bail!("--noise must be a non-negative number");
     }
-    let (exp, mut policy) = RunDir::new(&a.run).policy(a.checkpoint)?;
+    let run = RunDir::new(&a.run);
+    let (exp, mut policy) = run.policy(a.checkpoint)?;
+    // The teacher's own test: its summary's, which tests the best (a zoo entry's: the one it
+    // ships); other agents of a run have none.
+    let test = match a.checkpoint {
+        Which::Best if run.is_zoo_entry() => crate::zoo::read_as_run(&run)?.0.test_eval,
+        Which::Best => run.read_summary().ok().and_then(|s| s.test_eval),
+        _ => None,
+    }
+    .map(|t| TeacherTest {
+        step: t.step,
+        episodes: t.episodes,
+        mean_stock_return: t.mean_stock_return,
+        std_stock_return: t.std_stock_return,
+        success_rate: t.success_rate,
+    });
+    let info = TeacherInfo {
+        run: a.run.display().to_string(),
+        name: exp.name.clone(),
+        algo: exp.algo.as_str().into(),
+        checkpoint: a.checkpoint.to_string(),
+        train_reward: String::new(), // `record` names the run's own
+        test,
+    };
     let t = rdpg_agents::rdpg::inject::record(
         policy.as_mut(),
         &exp.train,
         a.episodes,
         a.seed,
         a.noise,
-        &a.run.display().to_string(),
+        info,
     )?;
     t.save(&a.out)?;
-    let steps: usize = t.episodes.iter().map(|e| e.len()).sum();
-    let mean: f64 = t
-        .episodes
-        .iter()
-        .map(|e| e.rewards.iter().map(|&r| f64::from(r)).sum::<f64>())
-        .sum::<f64>()
-        / t.episodes.len() as f64;
+    let steps: usize = t.episodes.iter().map(|e| e.steps(t.act_dim)).sum();
+    let mean: f64 =
+        t.episodes.iter().map(|e| e.stock_return).sum::<f64>() / t.episodes.len() as f64;
     println!(
         "{}",
         serde_json::json!({
             "out": a.out.display().to_string(),
             "env": t.env,
-            "reward": t.reward.as_str(),
+            "action_repeat": t.action_repeat,
+            "teacher_train_reward": t.teacher.train_reward,
             "episodes": t.episodes.len(),
             "steps": steps,
-            "mean_return": mean,
+            "mean_stock_return": mean,
         })
     );
     Ok(())

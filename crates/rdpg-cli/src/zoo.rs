@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use crate::render::{render_run, RenderTarget};
 use crate::rundir::{
     copy_file, machine_description, read_json, write_json, EvalSummary, Metric, RunDir, Summary,
-    TestSummary, Which,
+    TeacherSummary, TestSummary, Which,
 };
 
 /// Arguments of `rdpg zoo`.
@@ -80,6 +80,9 @@ pub struct ZooSummary {
     pub reproduce: String,
     /// Sizes in bytes of the entry's files.
     pub files: Vec<(String, u64)>,
+    /// The teachers of experience injection (none without injection).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub teachers: Vec<TeacherSummary>,
 }
 
 /// The test evaluation in [`ZooSummary`].
@@ -278,6 +281,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
             )
         }),
         files,
+        teachers: summary.teachers.clone(),
     };
     write_json(&tmp.join("summary.json"), &zs)?;
     std::fs::rename(&tmp, &a.out)
@@ -357,6 +361,7 @@ pub fn read_as_run(entry: &RunDir) -> Result<(Summary, Vec<Metric>)> {
             std_stock_return: zs.test.std_return,
             success_rate: zs.test.success_rate,
         }),
+        teachers: zs.teachers,
         machine: Some(zs.machine),
     };
     Ok((summary, evals))

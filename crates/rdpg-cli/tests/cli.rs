@@ -500,6 +500,36 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         .arg("--out")
         .arg(&student)
         .args(["--set", "off_policy.warmup_steps=200", "--set", &injection]));
+    let teachers: Value =
+        serde_json::from_str(&std::fs::read_to_string(student.join("teachers.json")).unwrap())
+            .unwrap();
+    assert_eq!(teachers[0]["checkpoint"], "latest");
+    assert_eq!(teachers[0]["episodes"], 4);
+    // A student that sees the previous action too learns from the same file; one with another
+    // action repeat is refused, naming both.
+    let seeing = tmp("run-student-prev-action");
+    let _ = std::fs::remove_dir_all(&seeing);
+    ok(rdpg()
+        .args(["train", "--quiet", "--steps", "300", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&seeing)
+        .args(["--set", "off_policy.warmup_steps=200", "--set", &injection])
+        .args(["--set", "train.prev_action_obs=true"]));
+    let out = rdpg()
+        .args(["train", "--quiet", "--steps", "300", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(tmp("never-injected"))
+        .args(["--set", &injection, "--set", "train.action_repeat=2"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("action repeat 1") && err.contains("uses 2"),
+        "{err}"
+    );
+    assert!(!tmp("never-injected").exists());
 
     // Reports: the comparison table names rewards and metrics, the plots are PNGs, and the
     // trained agent renders.
@@ -521,7 +551,7 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         "{table}"
     );
     assert!(
-        table.contains("run-student (rdpg) | CueMemory-v0 | stock | 400 |"),
+        table.contains("run-student (rdpg; taught by cue-rdpg (rdpg, latest; no test)) | CueMemory-v0 | stock | 400 |"),
         "{table}"
     );
     assert!(table.contains("R_100MA") && table.contains("stock reward"));
@@ -899,21 +929,6 @@ fn train_rejects_bad_configs_naming_the_key() {
         assert!(!err.contains("panicked"), "{set}: {err}");
     }
     assert!(!tmp("never").join("config.toml").exists());
-    // Teacher files do not record the previous-action input.
-    let out = rdpg()
-        .args(["train", "--quiet", "--config"])
-        .arg(configs_dir().join("cue-rdpg-injection.toml"))
-        .args(["--out"])
-        .arg(tmp("never-injected"))
-        .args(["--set", "train.prev_action_obs=true"])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        !out.status.success() && err.contains("previous action"),
-        "{err}"
-    );
-
     // A start that fails after validation (no CUDA here, or a bad device) leaves no run
     // directory behind, so the retry is not blocked.
     if !rdpg_agents::cuda_available() {

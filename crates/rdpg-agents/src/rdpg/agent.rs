@@ -425,6 +425,35 @@ impl RdpgAgent {
         crate::common::policy::check_action_finite(tensor_to_vec(&a), "the actor's action")
     }
 
+    /// The trained actor's states before each of the first `n` steps of an episode whose
+    /// observations are `obs` (`[>= n, obs_dim]` row-major), from a zero state at its start:
+    /// `[n, state_dim]` row-major (`h` then `c`), what [`ActorState::env_state`] gives before
+    /// each step when the actor acts along the episode. The replay's stored states of teacher
+    /// episodes, which carry none of this actor's. Feed-forward agents: empty.
+    pub fn episode_states(&self, obs: &[f32], n: usize) -> Result<Vec<f32>> {
+        if obs.len() < n * self.obs_dim {
+            return Err(AgentError::Shape(format!(
+                "episode_states: {} observation values for {n} steps of obs_dim {}",
+                obs.len(),
+                self.obs_dim
+            )));
+        }
+        if n == 0 || !self.actor.core.is_recurrent() {
+            return Ok(Vec::new());
+        }
+        let hc = tch::no_grad(|| {
+            let o = Tensor::from_slice(&obs[..n * self.obs_dim])
+                .view([1, n as i64, self.obs_dim as i64])
+                .to_kind(self.kind)
+                .to_device(self.device);
+            let x = self.actor.input_seq(&o); // [1, n, in]
+            let s0 = self.actor.core.zero_state(1, self.kind, self.device);
+            let (h, c) = self.actor.core.states_before(&x, &s0); // [1, n, H] each
+            Tensor::cat(&[h.squeeze_dim(0), c.squeeze_dim(0)], 1) // [n, 2H]
+        });
+        Ok(tensor_to_vec(&hc))
+    }
+
     /// Number of actor parameters (the length of [`RdpgAgent::actor_params`]).
     pub fn actor_param_count(&self) -> usize {
         sorted_vars(&self.actor_vs)

@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use super::agent::{ActorState, RdpgAgent};
 use super::config::RdpgConfig;
-use super::inject::{plain_env_options, TeacherFile};
+use super::inject::TeacherFile;
 use super::off_policy::{ExplorationConfig, OffPolicyConfig, PerturbSchedule};
 use crate::common::checkpoint::{
     ckpt_err, read_bin, read_json, write_bin, write_json, Header, TrainerKind,
@@ -113,26 +113,14 @@ impl OffPolicyTrainer {
             field: "replay",
             reason: e.to_string(),
         })?;
-        if off.injection.is_some() {
-            // Before any teacher file is read: runs it cannot describe are refused as such.
-            plain_env_options(&cfg, "off_policy.injection")?;
-        }
         for path in off.injection.iter().flat_map(|i| &i.teachers) {
-            let teacher = TeacherFile::load(path)?;
-            teacher.check_fits(&cfg, path)?;
-            if (teacher.obs_dim, teacher.act_dim) != (obs_dim, act_dim) {
-                return Err(AgentError::Config {
-                    field: "off_policy.injection",
-                    reason: format!(
-                        "teacher {} has obs/act sizes {}/{}, the env {obs_dim}/{act_dim}",
-                        path.display(),
-                        teacher.obs_dim,
-                        teacher.act_dim
-                    ),
-                });
-            }
-            for mut ep in teacher.episodes {
-                ep.injected = true;
+            // The teacher's episodes replayed through this run's own env options; a
+            // stored-state student gets its own actor's states along them (module docs of
+            // `inject`).
+            for mut ep in TeacherFile::load(path)?.episodes_for(&cfg, path)? {
+                if state_dim > 0 {
+                    ep.states = agent.episode_states(&ep.obs, ep.len())?;
+                }
                 replay.add_episode(ep).map_err(|e| AgentError::Config {
                     field: "off_policy.injection",
                     reason: format!("teacher {}: {e}", path.display()),
