@@ -5,7 +5,8 @@
 //! `compare` (learning curves, a Table-I-shaped comparison), `rollout` (replay a fixed action
 //! sequence and print the trajectory as JSON lines), `render` (an episode to PNG frames and an
 //! animated GIF), `select` (choose among kept agents on more validation episodes), `zoo` (ship
-//! an agent), `bench` (throughput).
+//! an agent), `sweep` (rows × seeds on Ray Tune), `table` (seed-aggregated tables and curves),
+//! `bench` (throughput).
 
 mod bench;
 mod experiment;
@@ -15,6 +16,8 @@ mod rollout;
 mod rundir;
 mod select;
 mod stop;
+mod sweep;
+mod table;
 mod train;
 mod zoo;
 
@@ -23,7 +26,7 @@ use clap::{Parser, Subcommand};
 
 /// Recurrent deterministic policy gradients for legged robots on rough terrain.
 #[derive(Debug, Parser)]
-#[command(name = "rdpg", version, about)]
+#[command(name = "rdpg", version = concat!(env!("CARGO_PKG_VERSION"), " (commit ", env!("RDPG_GIT_COMMIT"), ")"), about)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -50,6 +53,11 @@ enum Command {
     Select(select::SelectArgs),
     /// Ship a run's best (or selected) agent as a zoo entry (weights, config, test evaluation, curves, GIF).
     Zoo(zoo::ZooArgs),
+    /// Many runs from one sweep file (rows × seeds, each an `rdpg train` process) on Ray Tune:
+    /// on this machine or a Ray cluster; rerun to resume.
+    Sweep(sweep::SweepArgs),
+    /// Seed-aggregated tables (Markdown, CSV) and curves of a sweep's result files or runs.
+    Table(table::TableArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -68,6 +76,8 @@ fn main() -> Result<()> {
         Command::Render(a) => render::run(&a),
         Command::Select(a) => select::run(&a),
         Command::Zoo(a) => zoo::run(&a),
+        Command::Sweep(a) => sweep::run(&a),
+        Command::Table(a) => table::run(&a),
         Command::Bench(b) => bench::run(&b),
     }
 }

@@ -198,7 +198,7 @@ fn table(runs: &[Run]) -> String {
         let best = s.best_eval.map_or("–".into(), |e| {
             format!("{:.1} (step {})", e.mean_stock_return, e.step)
         });
-        let (test, test_success) = s.test_eval.map_or(("–".into(), "–".into()), |e| {
+        let (test, test_success) = s.test_eval.as_ref().map_or(("–".into(), "–".into()), |e| {
             (
                 format!(
                     "{:.1} ± {:.1} ({} ep.)",

@@ -31,6 +31,10 @@ use syntaxdot_summary::SummaryWriter;
 
 use crate::experiment::Experiment;
 
+/// The git commit this binary was built from (`+dirty` when tracked files differed from it,
+/// `unknown` when built outside a git checkout).
+pub const GIT_COMMIT: &str = env!("RDPG_GIT_COMMIT");
+
 /// Which agent of a run: `best`, `latest`, `selected` or the step of a kept agent (on the
 /// command line `--checkpoint best|latest|selected|STEP`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -117,6 +121,36 @@ impl RunDir {
         let text = std::fs::read_to_string(&path)
             .with_context(|| format!("reading {}", path.display()))?;
         serde_json::from_str(&text).with_context(|| format!("{}: bad teacher list", path.display()))
+    }
+
+    /// `versions.jsonl`: one line per start and resume of the run (see
+    /// [`RunDir::note_version`]).
+    pub fn versions(&self) -> PathBuf {
+        self.root.join("versions.jsonl")
+    }
+
+    /// Appends to `versions.jsonl` which binary `event` (`start` or `resume`) ran at `step`:
+    /// its version, the git commit it was built from ([`GIT_COMMIT`]) and the time (Unix
+    /// seconds).
+    pub fn note_version(&self, event: &str, step: u64) -> Result<()> {
+        let line = serde_json::json!({
+            "event": event,
+            "step": step,
+            "version": env!("CARGO_PKG_VERSION"),
+            "commit": GIT_COMMIT,
+            "unix_time": std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs()),
+        });
+        let path = self.versions();
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        writeln!(f, "{line}")
+            .and_then(|_| f.sync_all())
+            .with_context(|| format!("writing {}", path.display()))
     }
 
     /// `metrics.jsonl`.
@@ -767,7 +801,7 @@ impl TeacherSummary {
 }
 
 /// The test evaluation in [`Summary`].
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TestSummary {
     /// Environment steps of the tested agent (the best validation evaluation's).
     pub step: u64,
@@ -781,6 +815,12 @@ pub struct TestSummary {
     pub std_stock_return: f64,
     /// Share of episodes that reached the end of the course.
     pub success_rate: f64,
+    /// Every episode's stock return, in seed order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub returns: Vec<f64>,
+    /// Whether each episode reached the end of the course, in seed order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub successes: Vec<bool>,
 }
 
 /// An evaluation in [`Summary`].
@@ -952,6 +992,7 @@ impl RunLog {
                     time_limit_rate: 0.0,
                     returns: Vec::new(),
                     lengths: Vec::new(),
+                    successes: Vec::new(),
                     obstacles: Default::default(),
                 }),
             }
@@ -1119,7 +1160,7 @@ impl RunLog {
             best_r100_stock_reward: self.best_r100_stock,
             last_eval: self.last_eval.as_ref().map(EvalSummary::from),
             best_eval: self.best_eval.as_ref().map(EvalSummary::from),
-            test_eval: self.test_eval,
+            test_eval: self.test_eval.clone(),
             teachers: self.teachers.clone(),
             machine: Some(machine_description()),
         }

@@ -312,6 +312,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         // Only once the resume is accepted: a refused one leaves the run as it was.
         run.drop_agents_after(trainer.steps())?;
+        run.note_version("resume", trainer.steps())?;
         (run, exp, trainer, lock)
     } else {
         let path = a.config.as_ref().expect("clap requires --config");
@@ -354,6 +355,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if !teachers.is_empty() {
             write_json(&run.teachers(), &teachers)?;
         }
+        run.note_version("start", 0)?;
         (run, exp, trainer, lock)
     };
     let total = exp.train.total_steps;
@@ -457,6 +459,8 @@ fn test_best(run: &RunDir, exp: &Experiment, best: Option<&EvalRecord>) -> Resul
         mean_stock_return: r.mean_return,
         std_stock_return: r.std_return,
         success_rate: r.success_rate,
+        returns: r.returns,
+        successes: r.successes,
     })
 }
 

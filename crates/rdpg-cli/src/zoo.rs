@@ -360,6 +360,8 @@ pub fn read_as_run(entry: &RunDir) -> Result<(Summary, Vec<Metric>)> {
             mean_stock_return: zs.test.mean_return,
             std_stock_return: zs.test.std_return,
             success_rate: zs.test.success_rate,
+            returns: zs.test.returns,
+            successes: Vec::new(),
         }),
         teachers: zs.teachers,
         machine: Some(zs.machine),

@@ -1279,3 +1279,266 @@ fn walker_resumes_bit_identically(name: &str, extra: Option<&str>) {
         "the benchmark changed the run"
     );
 }
+
+/// A sweep file that `rdpg sweep` refuses: an unknown key, a row overriding a key that does
+/// not exist, a budget that is not a number, two rows of one name — each named, before any
+/// trial starts; `--plan` resolves each row to its settings.
+#[test]
+fn sweep_files_are_checked_and_planned() {
+    let dir = tmp("sweep-check");
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = configs_dir().join("cue-rdpg.toml");
+    let file = dir.join("s.toml");
+    let write = |body: &str| {
+        std::fs::write(
+            &file,
+            format!(
+                "base = {:?}\nseeds = [0, 1]\n{body}",
+                base.display().to_string()
+            ),
+        )
+        .unwrap()
+    };
+    let sweep = || {
+        let mut c = rdpg();
+        c.current_dir(&dir).arg("sweep").arg(&file).arg("--plan");
+        c
+    };
+    for (body, needles) in [
+        (
+            "steps = 100\nwarmup = 3\n[[row]]\nname = \"a\"\n",
+            &["unknown field `warmup`"][..],
+        ),
+        (
+            "steps = \"many\"\n[[row]]\nname = \"a\"\n",
+            &["invalid type: string \"many\", expected u64"][..],
+        ),
+        (
+            "steps = 100\n[[row]]\nname = \"a\"\nset = [\"agent.hiden=3\"]\n",
+            &["row \"a\"", "hiden"][..],
+        ),
+        (
+            "steps = 100\n[[row]]\nname = \"a\"\n[[row]]\nname = \"a\"\n",
+            &["two rows are named \"a\""][..],
+        ),
+        (
+            "steps = 100\n[[row]]\nname = \"a/b\"\n",
+            &["row name \"a/b\""][..],
+        ),
+    ] {
+        write(body);
+        fails(&mut sweep(), needles);
+    }
+    write(concat!(
+        "steps = 400\n[grid]\n\"agent.scan_len\" = [2, 4]\n",
+        "[[row]]\nname = \"rdpg\"\nset = [\"agent.opt_len=4\", \"agent.update_len=4\"]\n",
+        "paper = { label = \"Our RDPG\", r100ma = 227.5, success = 23.5 }\n",
+        "[[row]]\nname = \"ddpg\"\nset = [\"algo=\\\"ddpg\\\"\", \"agent.recurrent=false\"]\n",
+    ));
+    let plan: Value = serde_json::from_slice(&ok(&mut sweep()).stdout).unwrap();
+    assert_eq!(plan["trials"], 8);
+    let rows = plan["rows"].as_array().unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r["row"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "rdpg-scan_len=2",
+            "rdpg-scan_len=4",
+            "ddpg-scan_len=2",
+            "ddpg-scan_len=4"
+        ]
+    );
+    let s = &rows[1]["settings"];
+    assert_eq!(
+        (
+            s["algo"].as_str(),
+            s["scan_len"].as_u64(),
+            s["opt_len"].as_u64()
+        ),
+        (Some("rdpg"), Some(4), Some(4))
+    );
+    assert_eq!(
+        (s["total_steps"].as_u64(), s["num_threads"].as_u64()),
+        (Some(400), Some(1))
+    );
+    assert_eq!(rows[0]["paper"]["r100ma"], 227.5);
+    assert_eq!(rows[2]["settings"]["recurrent"], false);
+    assert!(rows
+        .iter()
+        .all(|r| r["core_hours_per_trial"].as_f64().unwrap() > 0.0));
+}
+
+/// `rdpg sweep` end to end on a local Ray: two rows × two seeds of the cue task, stopped once
+/// with SIGINT (Ctrl-C) after the first checkpoint and resumed by running the command again;
+/// the interrupted trials resume (not restart) and `rdpg table` gives the numbers of the runs'
+/// own summaries.
+#[test]
+fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
+    let python = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
+    assert!(
+        python.exists(),
+        "run the README's set-up first (it makes .venv)"
+    );
+    let dir = tmp("sweep-ray");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        dir.join("s.toml"),
+        format!(
+            concat!(
+                "name = \"s\"\nbase = {:?}\nseeds = [0, 1]\nsteps = 2000\n",
+                "set = [\"train.eval_every=500\", \"train.eval_episodes=20\", ",
+                "\"train.test_episodes=200\", \"run.checkpoint_every=250\"]\n",
+                "[[row]]\nname = \"rdpg\"\n",
+                "[[row]]\nname = \"ddpg\"\nset = [\"algo=\\\"ddpg\\\"\", \"agent.recurrent=false\"]\n",
+            ),
+            configs_dir().join("cue-rdpg.toml").display().to_string()
+        ),
+    )
+    .unwrap();
+    let sweep = || {
+        let mut c = rdpg();
+        c.current_dir(&dir)
+            .args(["sweep", "s.toml", "--cpus", "2", "--python"])
+            .arg(&python);
+        c
+    };
+    let trials = dir.join("runs/sweeps/s/trials");
+    let mut child = sweep()
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while !["rdpg-s0", "rdpg-s1"].iter().any(|t| {
+        trials
+            .join(t)
+            .join("checkpoints/latest/manifest.json")
+            .exists()
+    }) {
+        assert!(
+            t0.elapsed().as_secs() < 180,
+            "no checkpoint after 3 minutes"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    ok(Command::new("kill").args(["-INT", &child.id().to_string()]));
+    assert!(
+        !child.wait().unwrap().success(),
+        "an interrupted sweep reported success"
+    );
+    let out = ok(&mut sweep());
+    let last = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .last()
+        .unwrap()
+        .to_string();
+    let end: Value = serde_json::from_str(&last).unwrap();
+    assert_eq!(
+        (end["trials"].as_u64(), end["finished"].as_u64()),
+        (Some(4), Some(4))
+    );
+    // At least one trial continued from a checkpoint after the interrupt, none restarted.
+    let mut resumed = 0;
+    for t in ["rdpg-s0", "rdpg-s1", "ddpg-s0", "ddpg-s1"] {
+        let v = std::fs::read_to_string(trials.join(t).join("versions.jsonl")).unwrap();
+        let events: Vec<Value> = v
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(events[0]["event"], "start", "{t}");
+        assert_eq!(
+            events.iter().filter(|e| e["event"] == "start").count(),
+            1,
+            "{t}"
+        );
+        resumed += events
+            .iter()
+            .any(|e| e["event"] == "resume" && e["step"].as_u64() > Some(0))
+            as usize;
+    }
+    assert!(resumed >= 1, "no trial resumed");
+    // The table's numbers are the summaries' own.
+    let csv = dir.join("t.csv");
+    ok(rdpg()
+        .current_dir(&dir)
+        .args(["table", "results/s", "--csv"])
+        .arg(&csv));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    for line in text.lines().skip(1) {
+        let cells: Vec<&str> = line.split(',').collect();
+        let row = cells[0];
+        let (mut means, mut successes) = (Vec::new(), Vec::new());
+        for seed in [0, 1] {
+            let s = json_file(&trials.join(format!("{row}-s{seed}")).join("summary.json"));
+            let test = &s["test_eval"];
+            let returns: Vec<f64> = test["returns"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect();
+            assert_eq!(returns.len(), 200);
+            means.push(returns[..100].iter().sum::<f64>() / 100.0);
+            successes.push(
+                test["successes"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .filter(|b| b.as_bool().unwrap())
+                    .count() as f64
+                    / 2.0,
+            );
+        }
+        let num = |c: &str| cells[col(c)].parse::<f64>().unwrap();
+        let mean = (means[0] + means[1]) / 2.0;
+        assert!((num("mean") - mean).abs() < 1e-9, "{row}: {line}");
+        assert!(
+            (num("std") - (means[0] - means[1]).abs() / 2f64.sqrt()).abs() < 1e-9,
+            "{row}: {line}"
+        );
+        assert!((num("success_200") - (successes[0] + successes[1]) / 2.0).abs() < 1e-9);
+        assert!(
+            num("iqm_lo") <= num("iqm") && num("iqm") <= num("iqm_hi"),
+            "{line}"
+        );
+    }
+    // The rows as the sweep file orders them; RDPG remembers the cue, DDPG cannot.
+    let rows: Vec<&str> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
+    assert_eq!(rows, ["rdpg", "ddpg"]);
+}
+
+/// Every committed table (`results/<sweep>/table.md`) is what `rdpg table` makes of the
+/// committed result files today: the command named in its last line gives it byte for byte.
+#[test]
+fn committed_tables_regenerate_from_their_result_files() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(root.join("results")).unwrap() {
+        let table = entry.unwrap().path().join("table.md");
+        let Ok(text) = std::fs::read_to_string(&table) else {
+            continue;
+        };
+        let command = text
+            .lines()
+            .rev()
+            .find_map(|l| l.strip_prefix("Made by `")?.strip_suffix("`."))
+            .unwrap_or_else(|| panic!("{}: no `Made by` line", table.display()));
+        let args: Vec<&str> = command.split(' ').skip(1).collect();
+        let out = ok(rdpg().current_dir(&root).args(&args));
+        assert_eq!(
+            String::from_utf8_lossy(&out.stdout),
+            text,
+            "{}",
+            table.display()
+        );
+        checked += 1;
+    }
+    assert!(checked >= 1, "no committed table");
+}

@@ -94,7 +94,8 @@ pub fn evaluate_policy_traced(
     let space = env.action_space().clone();
     let mut returns = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
     let mut lengths = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
-    let (mut successes, mut time_limits) = (0, 0);
+    let mut successes = Vec::with_capacity(episodes.min(PREALLOCATED_EPISODES));
+    let mut time_limits = 0;
     let mut obstacles: BTreeMap<String, ObstacleRecord> = BTreeMap::new();
     let mut actions = Vec::new();
     for ep_seed in episode_seeds(seed, episodes)? {
@@ -108,7 +109,7 @@ pub fn evaluate_policy_traced(
             actions.push(a);
             ret += s.reward;
             if s.done() {
-                successes += s.info.success as usize;
+                successes.push(s.info.success);
                 time_limits += (s.truncated && !s.terminated) as usize;
                 if let Some(c) = s.info.course {
                     note_course(&mut obstacles, &c, &s);
@@ -132,10 +133,11 @@ pub fn evaluate_policy_traced(
         step: 0,
         mean_return: mean,
         std_return: std,
-        success_rate: successes as f64 / m,
+        success_rate: successes.iter().filter(|&&x| x).count() as f64 / m,
         time_limit_rate: time_limits as f64 / m,
         returns,
         lengths,
+        successes,
         obstacles,
     })
 }

@@ -78,6 +78,9 @@ pub struct EvalRecord {
     /// Every episode's length in agent steps (of `train.action_repeat` frames each).
     #[serde(default)]
     pub lengths: Vec<usize>,
+    /// Whether each episode reached the end of the course.
+    #[serde(default)]
+    pub successes: Vec<bool>,
     /// Walker courses: how the episodes fared at each kind of obstacle (`stump`, `stairs`,
     /// `pit`), and `none` for episodes that ended away from any obstacle; empty for other
     /// environments.

@@ -1,0 +1,475 @@
+//! `rdpg table`: rows × seeds aggregated, from a sweep's result files (`results/<sweep>/`,
+//! committed, so tables regenerate on a fresh clone) or from run directories.
+//!
+//! Per row: each seed's stock-reward test (the chosen agent's first 100 test episodes), their
+//! mean ± sample std over seeds, the interquartile mean (IQM) of the test episodes of all seeds
+//! with a 95 % bootstrap confidence interval that resamples seeds (Agarwal et al. 2021:
+//! runs are the unit), the paper's metrics (best R_100MA on the training reward; success over
+//! the 200 test episodes when the test ran 200) and, where the sweep says which row is which,
+//! the paper's own Table I values. With `--versus ROW`, the IQM difference of every row to that
+//! row with its 95 % CI: an ordering holds where the CI excludes 0.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use rdpg_core::rng::NpRng;
+use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
+use rdpg_render::{rasterize, save_png};
+
+use crate::rundir::{read_json, Metric, RunDir};
+use crate::sweep::TrialResult;
+
+/// Arguments of `rdpg table`.
+#[derive(Debug, Args)]
+pub struct TableArgs {
+    /// Result files, folders of result files (`results/<sweep>`), or run directories.
+    #[arg(required = true)]
+    inputs: Vec<PathBuf>,
+    /// Also write the Markdown table here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Also write the table as CSV here.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Validation curves, one per row: the mean over seeds (PNG).
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Add the IQM difference of every row to this row, with its 95 % bootstrap CI.
+    #[arg(long)]
+    versus: Option<String>,
+    /// Bootstrap resamples.
+    #[arg(long, default_value_t = DEFAULT_RESAMPLES)]
+    resamples: usize,
+}
+
+const DEFAULT_RESAMPLES: usize = 10_000;
+
+/// Episodes of the stock-reward test.
+const STOCK_TEST_EPISODES: usize = 100;
+
+fn read_inputs(inputs: &[PathBuf]) -> Result<Vec<TrialResult>> {
+    let mut out = Vec::new();
+    for (k, p) in inputs.iter().enumerate() {
+        if p.extension().is_some_and(|e| e == "toml") {
+            let sweep = crate::sweep::Sweep::load(p)?;
+            let got = read_inputs(std::slice::from_ref(&sweep.results)).with_context(|| {
+                format!(
+                    "sweep {}: no result file yet (rdpg sweep writes them)",
+                    p.display()
+                )
+            })?;
+            out.extend(got);
+        } else if p.is_file() {
+            out.push(read_json(p)?);
+        } else if p.join("summary.json").exists() && p.join("config.toml").exists() {
+            out.push(from_run(p, k)?);
+        } else if p.is_dir() {
+            let mut files: Vec<PathBuf> = std::fs::read_dir(p)
+                .with_context(|| format!("reading {}", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| f.extension().is_some_and(|e| e == "json"))
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                bail!(
+                    "{} holds no result file (*.json) and is no run",
+                    p.display()
+                );
+            }
+            for f in files {
+                out.push(read_json(&f)?);
+            }
+        } else {
+            bail!("{}: no such result file, folder or run", p.display());
+        }
+    }
+    if out.is_empty() {
+        bail!("no trial to tabulate");
+    }
+    Ok(out)
+}
+
+/// A run directory as a trial: its experiment name is the row.
+fn from_run(dir: &Path, row_index: usize) -> Result<TrialResult> {
+    let run = RunDir::new(dir);
+    let exp = run.experiment()?;
+    let summary = run.read_summary()?;
+    let metrics = run.read_metrics()?;
+    Ok(TrialResult {
+        sweep: String::new(),
+        row: summary.name.clone(),
+        row_index,
+        seed: exp.train.seed,
+        paper: None,
+        description: String::new(),
+        versions: Vec::new(),
+        steps: summary.steps,
+        frames: summary.steps * exp.train.action_repeat as u64,
+        updates: metrics
+            .iter()
+            .map(|m| match m {
+                Metric::Episode { learner, .. } => learner.updates,
+                Metric::Eval { .. } => 0,
+            })
+            .sum(),
+        curve: metrics
+            .iter()
+            .filter_map(|m| match *m {
+                Metric::Eval {
+                    step, mean_return, ..
+                } => Some((step, mean_return)),
+                Metric::Episode { .. } => None,
+            })
+            .collect(),
+        summary,
+        command: format!("rdpg train --resume {}", dir.display()),
+    })
+}
+
+/// Mean of `xs` trimmed by a quarter on each side (the interquartile mean; fractional ends
+/// weighted, so that every sample size has one).
+pub fn iqm(xs: &[f64]) -> f64 {
+    let mut v = xs.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len() as f64;
+    let (lo, hi) = (0.25 * n, 0.75 * n);
+    let mut sum = 0.0;
+    for (i, x) in v.iter().enumerate() {
+        // The share of sample i's unit interval [i, i + 1) inside [lo, hi).
+        let w = ((i as f64 + 1.0).min(hi) - (i as f64).max(lo)).max(0.0);
+        sum += w * x;
+    }
+    sum / (hi - lo)
+}
+
+/// 95 % percentile bootstrap interval of `stat` over runs: each resample draws as many runs as
+/// there are, with replacement, and pools their episodes.
+fn bootstrap_ci(
+    runs: &[&[f64]],
+    resamples: usize,
+    rng: &mut NpRng,
+    stat: &dyn Fn(&[f64]) -> f64,
+) -> (f64, f64) {
+    let mut stats: Vec<f64> = (0..resamples)
+        .map(|_| {
+            let mut pooled = Vec::new();
+            for _ in 0..runs.len() {
+                let k = rng.integers(0, runs.len() as i64) as usize;
+                pooled.extend_from_slice(runs[k]);
+            }
+            stat(&pooled)
+        })
+        .collect();
+    stats.sort_by(f64::total_cmp);
+    let at = |q: f64| stats[((q * (stats.len() - 1) as f64).round() as usize).min(stats.len() - 1)];
+    (at(0.025), at(0.975))
+}
+
+/// One row of the table.
+struct Row {
+    name: String,
+    trials: Vec<TrialResult>,
+}
+
+impl Row {
+    /// Each seed's stock-test returns (the first 100 test episodes).
+    fn tests(&self) -> Vec<&[f64]> {
+        self.trials
+            .iter()
+            .filter_map(|t| t.test())
+            .map(|t| &t.returns[..t.returns.len().min(STOCK_TEST_EPISODES)])
+            .filter(|r| !r.is_empty())
+            .collect()
+    }
+}
+
+fn mean_std(xs: &[f64]) -> (f64, f64) {
+    let n = xs.len() as f64;
+    let m = xs.iter().sum::<f64>() / n;
+    let var = if xs.len() > 1 {
+        xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)
+    } else {
+        0.0
+    };
+    (m, var.sqrt())
+}
+
+fn fmt_opt(v: Option<f64>) -> String {
+    v.map_or("–".into(), |x| format!("{x:.1}"))
+}
+
+/// `rdpg table`.
+pub fn run(a: &TableArgs) -> Result<()> {
+    if a.resamples < 100 {
+        bail!("--resamples must be at least 100");
+    }
+    let trials = read_inputs(&a.inputs)?;
+    let mut rows: Vec<Row> = Vec::new();
+    for t in trials {
+        match rows.iter_mut().find(|r| r.name == t.row) {
+            Some(r) => {
+                if r.trials.iter().any(|x| x.seed == t.seed) {
+                    bail!("row {:?} has seed {} twice", t.row, t.seed);
+                }
+                r.trials.push(t);
+            }
+            None => rows.push(Row {
+                name: t.row.clone(),
+                trials: vec![t],
+            }),
+        }
+    }
+    for r in &mut rows {
+        r.trials.sort_by_key(|t| t.seed);
+    }
+    rows.sort_by_key(|r| r.trials.iter().map(|t| t.row_index).min());
+    let mut rng = NpRng::from_seed(0);
+    let versus = match &a.versus {
+        Some(name) => Some(
+            rows.iter()
+                .find(|r| &r.name == name)
+                .with_context(|| format!("--versus {name:?}: no such row"))?
+                .tests()
+                .into_iter()
+                .map(<[f64]>::to_vec)
+                .collect::<Vec<_>>(),
+        ),
+        None => None,
+    };
+    let mut md = String::new();
+    let first = &rows[0].trials[0];
+    if !first.sweep.is_empty() {
+        let _ = writeln!(md, "Sweep `{}`. {}\n", first.sweep, first.description);
+    }
+    md += "| row | paper's row | seeds | agent steps (frames) | test per seed (stock, 100 ep.) | mean ± std over seeds | IQM [95 % CI] | success % (200 test ep.) | R_100MA (training reward) | paper R_100MA | paper success % |";
+    if a.versus.is_some() {
+        md += " IQM − versus [95 % CI] |";
+    }
+    md += "\n|---|---|---|---|---|---|---|---|---|---|---|";
+    if a.versus.is_some() {
+        md += "---|";
+    }
+    md += "\n";
+    let mut csv = String::from(
+        "row,paper_row,seeds,steps,frames,test_means,mean,std,iqm,iqm_lo,iqm_hi,success_200,r100ma_mean,r100ma_std,paper_r100ma,paper_success,versus_diff,versus_lo,versus_hi\n",
+    );
+    for r in &rows {
+        let tests = r.tests();
+        let means: Vec<f64> = tests.iter().map(|x| mean_std(x).0).collect();
+        let seeds: Vec<String> = r.trials.iter().map(|t| t.seed.to_string()).collect();
+        let (m, s) = if means.is_empty() {
+            (f64::NAN, f64::NAN)
+        } else {
+            mean_std(&means)
+        };
+        let pooled: Vec<f64> = tests.iter().flat_map(|x| x.iter().copied()).collect();
+        let (iq, (lo, hi)) = if pooled.is_empty() {
+            (f64::NAN, (f64::NAN, f64::NAN))
+        } else {
+            (
+                iqm(&pooled),
+                bootstrap_ci(&tests, a.resamples, &mut rng, &iqm),
+            )
+        };
+        // Success over 200 test episodes, where every seed's test ran at least 200.
+        let success200 = r
+            .trials
+            .iter()
+            .map(|t| {
+                t.test()
+                    .filter(|x| x.successes.len() >= 200)
+                    .map(|x| x.successes[..200].iter().filter(|&&b| b).count() as f64 / 2.0)
+            })
+            .collect::<Option<Vec<f64>>>()
+            .map(|v| mean_std(&v).0);
+        let r100: Vec<f64> = r
+            .trials
+            .iter()
+            .filter_map(|t| t.summary.best_r100_train_reward)
+            .collect();
+        let (r100m, r100s) = if r100.is_empty() {
+            (None, None)
+        } else {
+            let (m, s) = mean_std(&r100);
+            (Some(m), Some(s))
+        };
+        let paper = r.trials[0].paper.clone();
+        let steps: Vec<u64> = r.trials.iter().map(|t| t.steps).collect();
+        let frames: Vec<u64> = r.trials.iter().map(|t| t.frames).collect();
+        let steps_label = if steps.windows(2).all(|w| w[0] == w[1]) {
+            format!("{} ({})", steps[0], frames[0])
+        } else {
+            format!("{steps:?} (runs differ)")
+        };
+        let diff = versus.as_ref().filter(|_| !pooled.is_empty()).map(|v| {
+            let vs: Vec<&[f64]> = v.iter().map(Vec::as_slice).collect();
+            let pooled_v: Vec<f64> = v.iter().flatten().copied().collect();
+            let d = iq - iqm(&pooled_v);
+            let draws: Vec<f64> = (0..a.resamples)
+                .map(|_| {
+                    let (x, _) = bootstrap_ci(&tests, 1, &mut rng, &iqm);
+                    let (y, _) = bootstrap_ci(&vs, 1, &mut rng, &iqm);
+                    x - y
+                })
+                .collect();
+            let mut sorted = draws;
+            sorted.sort_by(f64::total_cmp);
+            let at = |q: f64| sorted[(q * (sorted.len() - 1) as f64).round() as usize];
+            (d, at(0.025), at(0.975))
+        });
+        let per_seed: Vec<String> = means.iter().map(|x| format!("{x:.1}")).collect();
+        let _ = write!(
+            md,
+            "| {} | {} | {} | {} | {} | {:.1} ± {:.1} | {:.1} [{:.1}, {:.1}] | {} | {} | {} | {} |",
+            r.name,
+            paper.as_ref().map_or("–", |p| p.label.as_str()),
+            seeds.join(", "),
+            steps_label,
+            per_seed.join(" / "),
+            m,
+            s,
+            iq,
+            lo,
+            hi,
+            fmt_opt(success200),
+            match (r100m, r100s) {
+                (Some(m), Some(s)) => format!("{m:.1} ± {s:.1}"),
+                _ => "n/a (< 100 episodes)".into(),
+            },
+            paper.as_ref().map_or("–".into(), |p| p
+                .r100ma
+                .map_or("N/A".into(), |v| format!("{v:.1}"))),
+            paper.as_ref().map_or("–".into(), |p| fmt_opt(p.success)),
+        );
+        if a.versus.is_some() {
+            let cell = if a.versus.as_ref() == Some(&r.name) {
+                "(reference)".into()
+            } else {
+                diff.map_or("–".into(), |(d, l, h)| {
+                    format!("{d:+.1} [{l:+.1}, {h:+.1}]")
+                })
+            };
+            let _ = write!(md, " {cell} |");
+        }
+        md += "\n";
+        let o = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x}"));
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{},{m},{s},{iq},{lo},{hi},{},{},{},{},{},{},{},{}",
+            r.name,
+            paper.as_ref().map_or("", |p| p.label.as_str()),
+            seeds.join(";"),
+            steps[0],
+            frames[0],
+            means
+                .iter()
+                .map(|x| x.to_string())
+                .collect::<Vec<_>>()
+                .join(";"),
+            o(success200),
+            o(r100m),
+            o(r100s),
+            o(paper.as_ref().and_then(|p| p.r100ma)),
+            o(paper.as_ref().and_then(|p| p.success)),
+            o(diff.map(|d| d.0)),
+            o(diff.map(|d| d.1)),
+            o(diff.map(|d| d.2)),
+        );
+    }
+    md += "\nTest: each seed's agent chosen on validation episodes, on its first 100 test \
+           episodes (stock reward); mean ± sample std over seeds of the per-seed means. IQM: \
+           interquartile mean of all seeds' test episodes; its 95 % CI resamples seeds (a \
+           percentile bootstrap). Success: share of the 200 test episodes that reached the end \
+           without a fall, mean over seeds. R_100MA: best 100-episode moving average of \
+           training returns (with exploration noise) on the training reward, the paper's \
+           metric.\n";
+    let mut command = String::from("rdpg table");
+    for i in &a.inputs {
+        command += &format!(" {}", i.display());
+    }
+    if let Some(v) = &a.versus {
+        command += &format!(" --versus {v}");
+    }
+    if a.resamples != DEFAULT_RESAMPLES {
+        command += &format!(" --resamples {}", a.resamples);
+    }
+    let _ = writeln!(md, "\nMade by `{command}`.");
+    print!("{md}");
+    if let Some(out) = &a.out {
+        std::fs::write(out, &md).with_context(|| format!("writing {}", out.display()))?;
+    }
+    if let Some(out) = &a.csv {
+        std::fs::write(out, &csv).with_context(|| format!("writing {}", out.display()))?;
+    }
+    if let Some(out) = &a.plot {
+        plot_rows(&rows, out)?;
+    }
+    Ok(())
+}
+
+/// The validation curves of each row: the mean over seeds at the steps every seed evaluated.
+fn plot_rows(rows: &[Row], out: &Path) -> Result<()> {
+    let series: Vec<Series> = rows
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let first = &r.trials[0].curve;
+            let points = first
+                .iter()
+                .filter_map(|&(step, _)| {
+                    let at: Vec<f64> = r
+                        .trials
+                        .iter()
+                        .filter_map(|t| t.curve.iter().find(|c| c.0 == step).map(|c| c.1))
+                        .collect();
+                    (at.len() == r.trials.len()).then(|| (step as f64, mean_std(&at).0))
+                })
+                .collect();
+            Series {
+                name: format!("{} ({} seeds)", r.name, r.trials.len()),
+                points,
+                color: PALETTE[i % PALETTE.len()],
+            }
+        })
+        .collect();
+    let plot = LinePlot {
+        title: "Validation return, mean over seeds".into(),
+        x_label: "agent steps".into(),
+        y_label: "mean return, stock reward".into(),
+        series,
+    };
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)?;
+    }
+    save_png(&rasterize(&figure(&[plot], 1, 720, 440)), out)
+        .with_context(|| format!("writing {}", out.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn iqm_trims_a_quarter_each_side_with_fractional_ends() {
+        // 8 values: the middle four.
+        assert_eq!(iqm(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 100.0]), 4.5);
+        // 3 values: [0.75, 2.25) covers a quarter of the first, all of the second, a quarter
+        // of the third: (0.25 * 1 + 1 * 2 + 0.25 * 30) / 1.5.
+        assert!((iqm(&[30.0, 1.0, 2.0]) - (0.25 + 2.0 + 7.5) / 1.5).abs() < 1e-12);
+        assert_eq!(iqm(&[5.0]), 5.0);
+    }
+
+    #[test]
+    fn bootstrap_interval_brackets_the_statistic_and_narrows_with_agreeing_runs() {
+        let mut rng = NpRng::from_seed(1);
+        let a: Vec<f64> = (0..100).map(|i| i as f64).collect();
+        let b: Vec<f64> = (0..100).map(|i| 200.0 + i as f64).collect();
+        let (lo, hi) = bootstrap_ci(&[&a, &b], 2000, &mut rng, &iqm);
+        let whole: Vec<f64> = a.iter().chain(&b).copied().collect();
+        assert!(lo < iqm(&whole) && iqm(&whole) < hi, "{lo} {hi}");
+        let (lo2, hi2) = bootstrap_ci(&[&a, &a], 2000, &mut rng, &iqm);
+        assert_eq!((lo2, hi2), (iqm(&a), iqm(&a)));
+    }
+}

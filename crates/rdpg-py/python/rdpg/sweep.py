@@ -1,0 +1,252 @@
+"""The Ray Tune part of ``rdpg sweep``: ``python -m rdpg.sweep PLAN.json``.
+
+``rdpg sweep FILE`` parses and checks the sweep file, writes ``runs/sweeps/<name>/plan.json``
+(every trial's run directory, base config and overrides) and replaces itself with this module.
+Each trial is one ``rdpg train`` process driven by a function trainable: it forwards every
+validation evaluation of the run (``metrics.jsonl``) with ``tune.report`` and hands Tune a small
+checkpoint naming the run directory and its step -- never the directory itself, which holds the
+replay and can be hundreds of MB. Rerunning the command restores the Tune experiment: unfinished
+trials continue with ``rdpg train --resume``, finished ones are skipped. A trial that finishes
+has its small result file written (``rdpg sweep FILE --collect``) for ``rdpg table``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+
+def _finished(trial: dict) -> dict | None:
+    """The trial's summary when it reached its budget and ran its test, else None."""
+    try:
+        with open(os.path.join(trial["run_dir"], "summary.json")) as f:
+            summary = json.load(f)
+    except (OSError, ValueError):
+        return None
+    if summary.get("steps", 0) >= trial["steps"] and summary.get("test_eval"):
+        return summary
+    return None
+
+
+def _wait_unlocked(run_dir: str) -> None:
+    """Waits while another ``rdpg train`` holds the run (e.g. one still saving after a stop)."""
+    import fcntl
+
+    path = os.path.join(run_dir, ".lock")
+    if not os.path.exists(path):
+        return
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _checkpoint(run_dir: str, step: int):
+    from ray import tune
+
+    d = tempfile.mkdtemp(prefix="rdpg-trial-")
+    with open(os.path.join(d, "trial.json"), "w") as f:
+        json.dump({"run_dir": run_dir, "step": step}, f)
+    return tune.Checkpoint.from_directory(d)
+
+
+def make_trainable(plan: dict):
+    trials = {t["id"]: t for t in plan["trials"]}
+    binary, cwd = plan["binary"], plan["cwd"]
+
+    def collect() -> None:
+        subprocess.run(
+            [binary, "sweep", plan["sweep_file"], "--collect"],
+            cwd=cwd,
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+
+    def trainable(config: dict) -> None:
+        from ray import tune
+
+        t = trials[config["trial"]]
+        run_dir = t["run_dir"]
+        last_step = -1
+        ckpt = tune.get_checkpoint()
+        if ckpt is not None:
+            with ckpt.as_directory() as d:
+                with open(os.path.join(d, "trial.json")) as f:
+                    info = json.load(f)
+            if info["run_dir"] != run_dir:
+                raise RuntimeError(
+                    f"trial {t['id']}: Tune's checkpoint names {info['run_dir']}, the plan {run_dir}"
+                )
+            last_step = info["step"]
+        _wait_unlocked(run_dir)
+        summary = _finished(t)
+        if summary is None:
+            if os.path.exists(os.path.join(run_dir, "checkpoints", "latest", "manifest.json")):
+                args = [binary, "train", "--quiet", "--resume", run_dir]
+            else:
+                # Started but never checkpointed: nothing to keep, start again.
+                shutil.rmtree(run_dir, ignore_errors=True)
+                args = [binary, "train", "--quiet", "--config", t["base"], "--out", run_dir]
+                for s in t["set"]:
+                    args += ["--set", s]
+            os.makedirs(os.path.dirname(run_dir), exist_ok=True)
+            log_path = run_dir + ".log"
+            with open(log_path, "ab") as log:
+                # Its own session: a stop reaches it once, as the SIGTERM below, never also
+                # through a process group (a second signal makes it exit without saving).
+                proc = subprocess.Popen(
+                    args, cwd=cwd, stdout=log, stderr=log, start_new_session=True
+                )
+                metrics, offset = os.path.join(run_dir, "metrics.jsonl"), 0
+                try:
+                    while True:
+                        rc = proc.poll()
+                        offset, last_step = _report_evals(metrics, offset, last_step, run_dir)
+                        if rc is not None:
+                            break
+                        time.sleep(1.0)
+                finally:
+                    # Stopped by Tune (Ctrl-C) or failing: one SIGTERM, and no wait (Ray may end
+                    # this worker at any moment): the run saves its checkpoint and exits on its
+                    # own (Ray is told to leave a worker's children alone), and a rerun waits
+                    # for its lock. A worker killed outright leaves its run going to the end.
+                    if proc.poll() is None:
+                        proc.send_signal(signal.SIGTERM)
+            if rc != 0:
+                with open(log_path, "rb") as f:
+                    tail = f.read()[-2000:].decode(errors="replace")
+                raise RuntimeError(f"trial {t['id']}: rdpg train exited with {rc}:\n{tail}")
+            summary = _finished(t)
+            if summary is None:
+                raise RuntimeError(f"trial {t['id']}: rdpg train ended before its budget")
+        collect()
+        test = summary["test_eval"]
+        tune.report(
+            {
+                "step": summary["steps"],
+                "test_mean_stock_return": test["mean_stock_return"],
+                "test_success_rate": test["success_rate"],
+                "finished": True,
+            },
+            checkpoint=_checkpoint(run_dir, summary["steps"]),
+        )
+
+    return trainable
+
+
+def _report_evals(metrics: str, offset: int, last_step: int, run_dir: str):
+    """Reports the evaluation rows appended to ``metrics`` since ``offset`` (whole lines
+    only; a resumed run cuts the file back, so a shorter file restarts from 0)."""
+    from ray import tune
+
+    try:
+        size = os.path.getsize(metrics)
+    except OSError:
+        return offset, last_step
+    if size < offset:
+        offset = 0
+    with open(metrics, "rb") as f:
+        f.seek(offset)
+        data = f.read()
+    end = data.rfind(b"\n") + 1
+    for line in data[:end].splitlines():
+        try:
+            row = json.loads(line)
+        except ValueError:
+            continue
+        if row.get("kind") != "eval" or row["step"] <= last_step:
+            continue
+        last_step = row["step"]
+        tune.report(
+            {
+                "step": row["step"],
+                "mean_return": row["mean_return"],
+                "success_rate": row["success_rate"],
+                "finished": False,
+            },
+            checkpoint=_checkpoint(run_dir, row["step"]),
+        )
+    return offset + end, last_step
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 2:
+        print("usage: python -m rdpg.sweep PLAN.json (written by `rdpg sweep FILE`)", file=sys.stderr)
+        return 2
+    with open(argv[1]) as f:
+        plan = json.load(f)
+    # One small checkpoint per evaluation is what the sweep wants; Tune's advice against
+    # frequent experiment snapshots does not apply.
+    os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
+    # A stopped trial's `rdpg train` must get the time to save its checkpoint after its SIGTERM,
+    # where Ray would kill a worker's children with the worker.
+    os.environ.setdefault("RAY_kill_child_processes_on_worker_exit", "0")
+    os.environ.setdefault("RAY_kill_child_processes_on_worker_exit_with_raylet_subreaper", "0")
+    import ray
+    from ray import tune
+
+    storage = plan["storage"]
+    path = os.path.join(storage, "tune")
+    # Tune restores an experiment as it was defined: a sweep file whose trials changed since
+    # its runs started is refused rather than half-applied.
+    key = [[t["id"], t["base"], t["set"]] for t in plan["trials"]]
+    stored = os.path.join(storage, "trials.json")
+    if os.path.exists(stored):
+        with open(stored) as f:
+            if json.load(f) != key:
+                print(
+                    f"error: the trials of sweep {plan['name']} changed since its runs started "
+                    f"({stored}); give the changed sweep another name",
+                    file=sys.stderr,
+                )
+                return 2
+    else:
+        with open(stored, "w") as f:
+            json.dump(key, f)
+    if plan.get("address"):
+        ray.init(address=plan["address"])
+    else:
+        ray.init(num_cpus=plan["cpus"], include_dashboard=False)
+    try:
+        fn = tune.with_resources(make_trainable(plan), {"cpu": plan["threads"]})
+        if tune.Tuner.can_restore(path):
+            tuner = tune.Tuner.restore(path, trainable=fn, resume_errored=True)
+        else:
+            tuner = tune.Tuner(
+                fn,
+                param_space={"trial": tune.grid_search([t["id"] for t in plan["trials"]])},
+                tune_config=tune.TuneConfig(
+                    max_concurrent_trials=max(1, plan["cpus"] // plan["threads"])
+                ),
+                run_config=tune.RunConfig(
+                    name="tune",
+                    storage_path=storage,
+                    checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
+                    verbose=1,
+                ),
+            )
+        grid = tuner.fit()
+        errors = [str(r.error) for r in grid if r.error]
+    finally:
+        ray.shutdown()
+    finished = [t["id"] for t in plan["trials"] if _finished(t)]
+    print(
+        json.dumps(
+            {
+                "sweep": plan["name"],
+                "trials": len(plan["trials"]),
+                "finished": len(finished),
+                "errors": errors,
+            }
+        )
+    )
+    return 0 if len(finished) == len(plan["trials"]) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
