@@ -66,6 +66,17 @@ fn half_save_load_half_equals_one_go_with_parameter_noise() {
     assert!(sigma.is_some_and(|s| s != ParamNoiseSpec::default().initial_stddev));
 }
 
+/// Window-of-k agents carry each environment's last observations across a checkpoint.
+#[test]
+fn half_save_load_half_equals_one_go_with_a_window_of_k() {
+    let (train, off, mut agent) = small();
+    agent.act_window = 4;
+    agent.scan_len = 3;
+    agent.update_len = 1;
+    agent.tau = 0.01;
+    resume_is_identical(train, off, agent, "window");
+}
+
 /// Runs 700 steps in one go and 333 + save + load + the rest; asserts identical weights,
 /// optimiser and replay, and returns the parameter-noise σ reached.
 fn resume_is_identical(

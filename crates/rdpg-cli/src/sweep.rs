@@ -607,8 +607,12 @@ fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         };
         std::fs::create_dir_all(&sweep.results)
             .with_context(|| format!("creating {}", sweep.results.display()))?;
+        // Whole or not at all: written beside and renamed into place.
         let path = sweep.results.join(format!("{}.json", t.id));
-        write_json(&path, &r)?;
+        let partial = path.with_extension("json.partial");
+        write_json(&partial, &r)?;
+        std::fs::rename(&partial, &path)
+            .with_context(|| format!("renaming {} to {}", partial.display(), path.display()))?;
         out.push(path.display().to_string());
     }
     Ok(out)

@@ -1542,3 +1542,104 @@ fn committed_tables_regenerate_from_their_result_files() {
     }
     assert!(checked >= 1, "no committed table");
 }
+
+/// `sweeps/table1-cpu.toml --plan` resolves each row to what defines it in the paper, on the
+/// shared CPU scale; every other committed sweep file is valid.
+#[test]
+fn table1_sweep_resolves_each_row_to_its_paper_settings() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let out = ok(rdpg()
+        .current_dir(&root)
+        .args(["sweep", "sweeps/table1-cpu.toml", "--plan"]));
+    let plan: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(plan["seeds"], serde_json::json!([0, 1, 2]));
+    assert!(
+        plan["core_hours"].as_f64().unwrap() <= 60.0,
+        "{}",
+        plan["core_hours"]
+    );
+    let rows = plan["rows"].as_array().unwrap();
+    let row = |name: &str| {
+        rows.iter()
+            .find(|r| r["row"] == name)
+            .unwrap_or_else(|| panic!("no row {name}"))["settings"]
+            .clone()
+    };
+    let teacher = serde_json::json!(["teachers/hardcore-td3-paper-2m.bin"]);
+    for (name, recurrent, scan, target, bptt, tau, injection) in [
+        ("rdpg", true, 24, "tail_bootstrap", false, 0.0, Value::Null),
+        (
+            "rdpg-injection",
+            true,
+            24,
+            "tail_bootstrap",
+            false,
+            0.0,
+            teacher.clone(),
+        ),
+        (
+            "rdpg-baseline",
+            true,
+            0,
+            "per_step_td0",
+            true,
+            0.001,
+            Value::Null,
+        ),
+        ("ddpg", false, 0, "tail_bootstrap", false, 0.0, Value::Null),
+        (
+            "ddpg-injection",
+            false,
+            0,
+            "tail_bootstrap",
+            false,
+            0.0,
+            teacher,
+        ),
+    ] {
+        let s = row(name);
+        assert_eq!(s["recurrent"], recurrent, "{name}");
+        assert_eq!(s["scan_len"], scan, "{name}");
+        assert_eq!(s["critic_target"], target, "{name}");
+        assert_eq!(s["actor_bptt"], bptt, "{name}");
+        assert_eq!(s["tau"], tau, "{name}");
+        assert_eq!(s["injection"], injection, "{name}");
+        assert_eq!(s["burn_in_from_stored_state"], false, "{name}");
+        assert_eq!(s["param_noise"], true, "{name}");
+        assert_eq!(s["exploration"]["kind"], "ou", "{name}");
+        // The shared scale.
+        assert_eq!(
+            (
+                &s["actor_hidden"],
+                &s["action_repeat"],
+                &s["updates_per_step"]
+            ),
+            (
+                &serde_json::json!(64),
+                &serde_json::json!(3),
+                &serde_json::json!(0.5)
+            ),
+            "{name}"
+        );
+        assert_eq!(
+            (&s["train_reward"], &s["num_threads"]),
+            (
+                &serde_json::json!("paper, action repeat 3"),
+                &serde_json::json!(1)
+            )
+        );
+    }
+    assert_eq!(row("rdpg")["opt_len"], 8);
+    assert_eq!(row("rdpg")["update_len"], 8);
+    assert_eq!(row("ppo-kl")["algo"], "ppo");
+    assert_eq!(row("ppo-kl")["frames"], row("rdpg")["frames"]);
+    for entry in std::fs::read_dir(root.join("sweeps")).unwrap() {
+        let f = entry.unwrap().path();
+        // `--collect` loads and checks the whole sweep (and writes nothing before its runs).
+        ok(rdpg()
+            .current_dir(&root)
+            .arg("sweep")
+            .arg(&f)
+            .arg("--collect"));
+    }
+}

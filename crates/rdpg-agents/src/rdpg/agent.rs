@@ -9,7 +9,8 @@ use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
 use super::config::RdpgConfig;
-use super::lstm::RecState;
+use super::config::ScanMethod;
+use super::lstm::{scan_state, RecState};
 use super::nets::{Actor, Critic};
 use super::profile::PhaseTimes;
 use crate::common::adam::{Adam, AdamConfig};
@@ -25,6 +26,37 @@ pub struct ActorState {
     state: RecState,
     n_envs: usize,
     hidden: usize,
+    /// Window-of-k agents (`act_window`): the observations the state is re-encoded from.
+    window: Option<Window>,
+}
+
+/// The acting history of a window-of-k agent (`act_window = k`): each environment's last
+/// `k - 1` observations, oldest first and left-padded, and how many of them are real.
+#[derive(Debug)]
+struct Window {
+    k: usize,
+    obs_dim: usize,
+    /// `[n_envs, k - 1, obs_dim]` row-major.
+    hist: Vec<f32>,
+    len: Vec<usize>,
+}
+
+impl Window {
+    fn row(&mut self, env: usize) -> &mut [f32] {
+        let w = (self.k - 1) * self.obs_dim;
+        &mut self.hist[env * w..(env + 1) * w]
+    }
+
+    /// Appends `obs` (`[n_envs, obs_dim]`) to every environment's history.
+    fn push(&mut self, obs: &[f32]) {
+        let (d, k1) = (self.obs_dim, self.k - 1);
+        for (env, o) in obs.chunks_exact(d).enumerate() {
+            let row = self.row(env);
+            row.copy_within(d.., 0);
+            row[(k1 - 1) * d..].copy_from_slice(o);
+            self.len[env] = (self.len[env] + 1).min(k1);
+        }
+    }
 }
 
 impl ActorState {
@@ -44,6 +76,54 @@ impl ActorState {
             let _ = self.state.h.zero_();
             let _ = self.state.c.zero_();
         });
+        for env in 0..self.n_envs {
+            self.reset_window(env);
+        }
+    }
+
+    fn reset_window(&mut self, env: usize) {
+        if let Some(w) = &mut self.window {
+            w.row(env).fill(0.0);
+            w.len[env] = 0;
+        }
+    }
+
+    /// Values per environment in [`ActorState::to_vec`]: `2 * hidden` (`h` then `c`), or for
+    /// a window-of-k agent `1 + (k - 1) * obs_dim` (how many observations are real, then the
+    /// observations).
+    pub fn carried_len(&self) -> usize {
+        match &self.window {
+            Some(w) => 1 + (w.k - 1) * w.obs_dim,
+            None => 2 * self.hidden,
+        }
+    }
+
+    /// Overwrites environment `env`'s carried state with `v` ([`ActorState::carried_len`]
+    /// values, as [`ActorState::to_vec`] gives them), e.g. when a checkpoint resumes.
+    pub fn restore_env(&mut self, env: usize, v: &[f32]) -> Result<()> {
+        if v.len() != self.carried_len() || env >= self.n_envs {
+            return Err(AgentError::Shape(format!(
+                "actor state of {} values for env {env}, expected {} ({} envs)",
+                v.len(),
+                self.carried_len(),
+                self.n_envs
+            )));
+        }
+        match &mut self.window {
+            Some(w) => {
+                let len = v[0];
+                if !(len >= 0.0 && len <= (w.k - 1) as f32 && len.fract() == 0.0) {
+                    return Err(AgentError::Shape(format!(
+                        "window length {len} is not 0 to {}",
+                        w.k - 1
+                    )));
+                }
+                w.len[env] = len as usize;
+                w.row(env).copy_from_slice(&v[1..]);
+            }
+            None => self.set_env_state(env, v),
+        }
+        Ok(())
     }
 
     /// Zeroes environment `env`'s state (call when its episode ends).
@@ -57,6 +137,7 @@ impl ActorState {
             let _ = self.state.h.select(1, env as i64).zero_();
             let _ = self.state.c.select(1, env as i64).zero_();
         });
+        self.reset_window(env);
     }
 
     /// Environment `env`'s state, `[h (hidden), c (hidden)]`: what the replay stores as the
@@ -77,8 +158,18 @@ impl ActorState {
         tensor_to_vec(&hc)
     }
 
-    /// All states, `[n_envs, 2 * hidden]` row-major (`h` then `c` per environment).
+    /// All states, `[n_envs, carried_len]` row-major: `h` then `c` per environment, or a
+    /// window-of-k agent's history ([`ActorState::carried_len`]).
     pub fn to_vec(&self) -> Vec<f32> {
+        if let Some(w) = &self.window {
+            let row = (w.k - 1) * w.obs_dim;
+            return (0..self.n_envs)
+                .flat_map(|e| {
+                    std::iter::once(w.len[e] as f32)
+                        .chain(w.hist[e * row..(e + 1) * row].iter().copied())
+                })
+                .collect();
+        }
         tensor_to_vec(&Tensor::cat(
             &[self.state.h.squeeze_dim(0), self.state.c.squeeze_dim(0)],
             1,
@@ -365,10 +456,17 @@ impl RdpgAgent {
     /// A zero actor state for `n_envs` environments.
     pub fn initial_state(&self, n_envs: usize) -> ActorState {
         let hidden = self.actor.core.state_width();
+        let k = self.cfg.act_window;
         ActorState {
             state: RecState::zeros(n_envs as i64, hidden, self.kind, self.device),
             n_envs,
             hidden: hidden as usize,
+            window: (k > 0).then(|| Window {
+                k,
+                obs_dim: self.obs_dim,
+                hist: vec![0.0; n_envs * (k - 1) * self.obs_dim],
+                len: vec![0; n_envs],
+            }),
         }
     }
 
@@ -418,11 +516,27 @@ impl RdpgAgent {
                 .view([n as i64, self.obs_dim as i64])
                 .to_kind(self.kind)
                 .to_device(self.device);
+            if let Some(w) = &state.window {
+                // mu(o_t | the last k - 1 observations from a zero state), as training reads it.
+                let hist = Tensor::from_slice(&w.hist)
+                    .view([n as i64, (w.k - 1) as i64, self.obs_dim as i64])
+                    .to_kind(self.kind)
+                    .to_device(self.device);
+                let h0 = actor.core.zero_state(n as i64, self.kind, self.device);
+                let x = actor.input_seq(&hist);
+                let h = scan_state(&actor.core, &x, &w.len, &h0, ScanMethod::Grouped);
+                return actor.step(&o, &h).0;
+            }
             let (a, s) = actor.step(&o, &state.state);
             state.state = s;
             a
         });
-        crate::common::policy::check_action_finite(tensor_to_vec(&a), "the actor's action")
+        let a =
+            crate::common::policy::check_action_finite(tensor_to_vec(&a), "the actor's action")?;
+        if let Some(w) = &mut state.window {
+            w.push(obs);
+        }
+        Ok(a)
     }
 
     /// The trained actor's states before each of the first `n` steps of an episode whose

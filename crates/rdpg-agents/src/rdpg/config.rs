@@ -187,6 +187,14 @@ pub struct RdpgConfig {
     /// of zeros; with `scan_len = 0` the window itself starts from the stored state (R2D2's
     /// "stored state, no burn-in"). The critic scan always starts from zeros.
     pub burn_in_from_stored_state: bool,
+    /// Window-of-k acting and training (0: off, the LSTM state is carried over the whole
+    /// episode). With `k > 0` the actor acts on its last `k` observations, re-encoded from a
+    /// zero state at every step, and training matches it: each window scans its `k - 1`
+    /// previous steps from zero (`scan_len = k - 1`, no stored state), the critic trains on
+    /// the window's first step (`update_len = 1`, the actor likewise), and the tail bootstrap
+    /// re-encodes the `k - 1` steps before the tail from zero. Needs target networks and the
+    /// tail bootstrap; any `opt_len` (n-step returns).
+    pub act_window: usize,
     /// Target policy smoothing noise on the bootstrap action (TD3); none when `None`.
     pub target_noise: Option<TargetNoise>,
     /// TD3's delayed policy updates: the actor and the target networks are updated on every
@@ -257,6 +265,7 @@ impl Default for RdpgConfig {
             grad_clip: None,
             twin_critic: false,
             burn_in_from_stored_state: false,
+            act_window: 0,
             target_noise: None,
             policy_delay: 1,
             actor_uses_updated_critic: true,
@@ -377,6 +386,31 @@ impl RdpgConfig {
         }
         if !self.recurrent && self.burn_in_from_stored_state {
             return Err(bad("burn_in_from_stored_state", "needs a recurrent agent"));
+        }
+        if self.act_window > 0 {
+            let k = self.act_window;
+            let needs = |what: String| Err(bad("act_window", format!("k = {k} needs {what}")));
+            if k < 2 || !self.recurrent {
+                return needs("k >= 2 and a recurrent agent".into());
+            }
+            if self.scan_len != k - 1 || self.update_len != 1 {
+                return needs(format!(
+                    "scan_len = {} and update_len = 1 (got {} and {})",
+                    k - 1,
+                    self.scan_len,
+                    self.update_len
+                ));
+            }
+            if self.burn_in_from_stored_state
+                || self.tau == 0.0
+                || self.critic_target != CriticTarget::TailBootstrap
+            {
+                return needs(
+                    "burn_in_from_stored_state = false, target networks (tau > 0) and \
+                     critic_target = \"tail_bootstrap\""
+                        .into(),
+                );
+            }
         }
         if !(self.lambda.is_finite() && self.lambda >= 0.0) {
             return Err(bad(

@@ -45,6 +45,29 @@ pub(super) struct Prepared {
     pub(super) scan_len: Vec<usize>,
     /// Stored acting-time actor states `[1, N, H]` (when burning in from them).
     pub(super) stored: Option<RecState>,
+    /// Window-of-k agents (`act_window`): the `k - 1` steps before each window's tail.
+    pub(super) window_tail: Option<WindowTail>,
+}
+
+/// The `k - 1` observation-action pairs right before each window's tail (`act_window = k`),
+/// left-padded: what the target networks re-encode from a zero state for the bootstrap, as
+/// the actor does when it acts at the tail observation.
+pub(super) struct WindowTail {
+    /// `[N, k - 1, D]`, `[N, k - 1, A]`.
+    pub(super) obs: Tensor,
+    pub(super) act: Tensor,
+    /// Real steps among them (the last ones), per window.
+    pub(super) len: Vec<usize>,
+}
+
+impl WindowTail {
+    fn shallow_clone(&self) -> Self {
+        Self {
+            obs: self.obs.shallow_clone(),
+            act: self.act.shallow_clone(),
+            len: self.len.clone(),
+        }
+    }
 }
 
 impl Prepared {
@@ -70,6 +93,7 @@ impl Prepared {
             actor_w: self.actor_w.shallow_clone(),
             scan_len: self.scan_len.clone(),
             stored: self.stored.as_ref().map(RecState::shallow_clone),
+            window_tail: self.window_tail.as_ref().map(WindowTail::shallow_clone),
         }
     }
 }
@@ -115,7 +139,11 @@ impl RdpgAgent {
             for j in 0..len {
                 mask[i * ll + j] = 1.0;
                 boot_coef[i * ll + j] = gamma.powi((len - j) as i32);
-                actor_w[i * ll + j] = 1.0 / len as f64;
+                // Window-of-k: the actor trains where its state matches acting, step 0.
+                actor_w[i * ll + j] = match self.cfg.act_window {
+                    0 => 1.0 / len as f64,
+                    _ => f64::from(u8::from(j == 0)),
+                };
                 critic_w[i * ll + j] = td_w[j];
             }
         }
@@ -139,7 +167,30 @@ impl RdpgAgent {
             }
             _ => None,
         };
+        // Window-of-k: the k - 1 = s steps before the tail at `s + len_n` in the scan +
+        // window sequence, i.e. columns len_n .. len_n + s - 1; the real ones are the last
+        // min(s, scan_len + len_n).
+        let window_tail = (self.cfg.act_window > 0).then(|| {
+            let idx: Vec<i64> = (0..nn)
+                .flat_map(|i| (0..s).map(move |j| b.opt_len[i] as i64 + j))
+                .collect();
+            let idx = Tensor::from_slice(&idx)
+                .view([n, s, 1])
+                .to_device(self.device);
+            let take = |x: &Tensor, w: i64| {
+                x.narrow(1, 0, s + l)
+                    .gather(1, &idx.expand([n, s, w], false), false)
+            };
+            WindowTail {
+                obs: take(&obs, d),
+                act: take(&actions, a),
+                len: (0..nn)
+                    .map(|i| (b.scan_len[i] + b.opt_len[i]).min(s as usize))
+                    .collect(),
+            }
+        });
         Prepared {
+            window_tail,
             n,
             s,
             l,

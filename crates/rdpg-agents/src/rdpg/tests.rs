@@ -10,7 +10,9 @@ use super::agent::RdpgAgent;
 use super::bench::synthetic_batch;
 use super::config::{ForkConfig, RdpgConfig, ScanMethod, Trunk};
 use super::lstm::RecState;
-use super::update::{actor_loss, critic_loss_from, scan_critic, td_targets, ActorInput};
+use super::update::{
+    actor_loss, critic_loss_from, scan_critic, tail_action, target_q, td_targets, ActorInput,
+};
 use crate::common::tensor::{sorted_vars, tensor_to_vec64 as to_vec64, DeviceSpec};
 use crate::common::UpdateStats;
 
@@ -1524,7 +1526,8 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
         grad_clip: Some(0.5),
         ..recurrent.clone()
     };
-    for cfg in [recurrent, feed_forward, deferred, fork_cfg()] {
+    let window = twin_td3(window_cfg(4));
+    for cfg in [recurrent, feed_forward, deferred, fork_cfg(), window] {
         let parallel = RdpgConfig {
             parallel_twins: true,
             ..cfg.clone()
@@ -1840,5 +1843,181 @@ fn critic_on_trained_steps_equals_the_whole_window() {
                 cfg.recurrent
             );
         }
+    }
+}
+
+/// A window-of-k config on the tiny networks: `k - 1` scan steps, 3-step returns trained on
+/// the first step, target networks.
+fn window_cfg(k: usize) -> RdpgConfig {
+    RdpgConfig {
+        act_window: k,
+        scan_len: k - 1,
+        opt_len: 3,
+        update_len: 1,
+        tau: 0.01,
+        ..tiny()
+    }
+}
+
+/// Window-of-k acting: each action is `mu(o_t)` after the previous `k - 1` observations from
+/// a zero state, whatever came before; a reset empties the window, and the carried history
+/// round-trips through `to_vec` / `restore_env`.
+#[test]
+fn window_agents_act_on_their_last_k_observations() {
+    let k = 3;
+    let agent = RdpgAgent::new_with_kind(window_cfg(k), OBS, ACT, 2, Kind::Double).unwrap();
+    let mut rng = NpRng::from_seed(5);
+    let obs: Vec<f32> = (0..8 * OBS).map(|_| rng.standard_normal() as f32).collect();
+    let row = |t: usize| &obs[t * OBS..(t + 1) * OBS];
+    let reference = |first: usize, t: usize| {
+        let o = Tensor::from_slice(&obs[first * OBS..(t + 1) * OBS])
+            .view([1, (t + 1 - first) as i64, OBS as i64])
+            .to_kind(Kind::Double);
+        let h0 = agent.actor.core.zero_state(1, Kind::Double, Device::Cpu);
+        let (mu, _) = tch::no_grad(|| agent.actor.forward_seq(&o, &h0));
+        to_vec64(&mu.select(1, (t - first) as i64))
+    };
+    let mut st = agent.initial_state(1);
+    assert_eq!(st.carried_len(), 1 + (k - 1) * OBS);
+    for t in 0..6 {
+        let a: Vec<f64> = agent
+            .act(row(t), &mut st)
+            .unwrap()
+            .iter()
+            .map(|&x| f64::from(x))
+            .collect();
+        assert_close(
+            &a,
+            &reference(t.saturating_sub(k - 1), t),
+            1e-6,
+            "window action",
+        );
+    }
+    let saved = st.to_vec();
+    let mut back = agent.initial_state(1);
+    back.restore_env(0, &saved).unwrap();
+    assert_eq!(
+        agent.act(row(6), &mut st).unwrap(),
+        agent.act(row(6), &mut back).unwrap()
+    );
+    assert!(back.restore_env(0, &saved[1..]).is_err());
+    let mut bad = saved.clone();
+    bad[0] = k as f32; // more real steps than the window holds
+    assert!(back.restore_env(0, &bad).is_err());
+    st.reset_env(0);
+    let a: Vec<f64> = agent
+        .act(row(7), &mut st)
+        .unwrap()
+        .iter()
+        .map(|&x| f64::from(x))
+        .collect();
+    assert_close(&a, &reference(7, 7), 1e-6, "after a reset");
+}
+
+/// Window-of-k bootstrap: the target actor and critic re-encode the `k - 1` steps before each
+/// window's tail from a zero state (fewer near an episode start, the padding never entering),
+/// whatever the window's length, as the actor does when it acts at the tail.
+#[test]
+fn window_tail_reencodes_the_steps_before_the_tail_from_zero() {
+    let k = 4;
+    let cfg = window_cfg(k);
+    let agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 9, Kind::Double).unwrap();
+    let mut b = batch(&cfg, 16, 0.7, 4);
+    poison_padding(&mut b);
+    assert!(b.opt_len.iter().any(|&x| x < cfg.opt_len));
+    assert!(b.scan_len.iter().any(|&x| x < cfg.scan_len));
+    let p = agent.prepare(&b);
+    let t = agent.targets.as_ref().unwrap();
+    let unused = t
+        .actor
+        .core
+        .zero_state(b.n as i64, Kind::Double, Device::Cpu);
+    let a_tail = tch::no_grad(|| tail_action(&t.actor, &p, &unused));
+    let unused_c = t.critics[0]
+        .core
+        .zero_state(b.n as i64, Kind::Double, Device::Cpu);
+    let q_tail = tch::no_grad(|| target_q(&t.critics[0], &p, &unused_c, &a_tail));
+    let tt = b.scan + b.opt;
+    for i in 0..b.n {
+        let tail = b.scan + b.opt_len[i];
+        let first = (b.scan - b.scan_len[i]).max(tail - (k - 1));
+        let rows = (tail - first + 1) as i64;
+        let o: Vec<f32> = (first..=tail)
+            .flat_map(|j| b.obs[(i * (tt + 1) + j) * OBS..(i * (tt + 1) + j + 1) * OBS].to_vec())
+            .collect();
+        let o = Tensor::from_slice(&o)
+            .view([1, rows, OBS as i64])
+            .to_kind(Kind::Double);
+        let (mu, _) = tch::no_grad(|| {
+            t.actor
+                .forward_seq(&o, &t.actor.core.zero_state(1, Kind::Double, Device::Cpu))
+        });
+        let a_ref = mu.select(1, rows - 1);
+        assert_close(
+            &to_vec64(&a_tail.select(0, i as i64)),
+            &to_vec64(&a_ref),
+            1e-12,
+            "a_tail",
+        );
+        let a: Vec<f32> = (first..tail)
+            .flat_map(|j| b.actions[(i * tt + j) * ACT..(i * tt + j + 1) * ACT].to_vec())
+            .collect();
+        let a = Tensor::from_slice(&a)
+            .view([1, rows - 1, ACT as i64])
+            .to_kind(Kind::Double);
+        let a = Tensor::cat(&[a, a_ref.unsqueeze(1)], 1);
+        let c = &t.critics[0];
+        let (q, _) = tch::no_grad(|| {
+            c.forward_seq(&o, &a, &c.core.zero_state(1, Kind::Double, Device::Cpu))
+        });
+        assert_close(
+            &[to_vec64(&q_tail)[i]],
+            &[to_vec64(&q)[rows as usize - 1]],
+            1e-10,
+            "q_tail",
+        );
+    }
+    // The actor trains on the first step only, where its state is the acting one.
+    let w = to_vec64(&p.actor_w);
+    for i in 0..b.n {
+        for j in 0..cfg.opt_len {
+            assert_eq!(w[i * cfg.opt_len + j], f64::from(u8::from(j == 0)));
+        }
+    }
+    // And the whole update runs, with finite statistics.
+    let mut agent = agent;
+    let stats = agent.update(&b);
+    assert!(stats.critic_loss.is_finite() && stats.q_mean.is_finite());
+}
+
+/// `act_window` refuses the settings under which training would not see what acting sees.
+#[test]
+fn window_configs_are_checked() {
+    assert!(window_cfg(3).validate().is_ok());
+    for bad in [
+        RdpgConfig {
+            scan_len: 3,
+            ..window_cfg(3)
+        },
+        RdpgConfig {
+            update_len: 2,
+            ..window_cfg(3)
+        },
+        RdpgConfig {
+            tau: 0.0,
+            ..window_cfg(3)
+        },
+        RdpgConfig {
+            burn_in_from_stored_state: true,
+            ..window_cfg(3)
+        },
+        RdpgConfig {
+            act_window: 1,
+            scan_len: 0,
+            ..window_cfg(3)
+        },
+    ] {
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("act_window"), "{e}");
     }
 }

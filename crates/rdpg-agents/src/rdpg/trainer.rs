@@ -218,9 +218,9 @@ impl OffPolicyTrainer {
                 .set_exploring_params(Some(&pn.acting))
                 .map_err(|e| AgentError::Checkpoint(format!("parameter noise: {e}")))?;
         }
-        let sd = agent.state_dim();
         let restore = |v: &[f32]| -> Result<ActorState> {
             let mut s = agent.initial_state(n);
+            let sd = s.carried_len();
             if v.len() != n * sd {
                 return Err(ckpt_err(
                     &dir.join("loop.bin"),
@@ -229,7 +229,8 @@ impl OffPolicyTrainer {
             }
             for i in 0..n {
                 if sd > 0 {
-                    s.set_env_state(i, &v[i * sd..(i + 1) * sd]);
+                    s.restore_env(i, &v[i * sd..(i + 1) * sd])
+                        .map_err(|e| ckpt_err(&dir.join("loop.bin"), e))?;
                 }
             }
             Ok(s)

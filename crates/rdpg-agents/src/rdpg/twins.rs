@@ -25,8 +25,8 @@ use super::nets::Critic;
 use super::prepared::Prepared;
 use super::profile::Clock;
 use super::update::{
-    actor_states, critic_loss_from, scan_actor, scan_critic, soft_update, tail_action, target_q,
-    td_targets, trained_q, Scanned,
+    actor_states, critic_loss_from, scan_actor, scan_critic, scan_target_actor, scan_target_critic,
+    soft_update, tail_action, target_q, td_targets, trained_q, Scanned,
 };
 use crate::common::side_thread::SideThread;
 use crate::common::UpdateStats;
@@ -152,9 +152,12 @@ impl RdpgAgent {
             || {
                 tch::no_grad(|| {
                     (
-                        scan_actor(here, p, &actor_init, method),
+                        match with_actor {
+                            true => scan_actor(here, p, &actor_init, method),
+                            false => scan_target_actor(here, p, &actor_init, method),
+                        },
                         scan_critic(&self.critics[0], p, method),
-                        scan_critic(&t.critics[0], p, method),
+                        scan_target_critic(&t.critics[0], p, method),
                     )
                 })
             },
@@ -162,8 +165,8 @@ impl RdpgAgent {
                 tch::no_grad(|| {
                     (
                         scan_critic(&c1, &p1, method),
-                        scan_critic(&t1, &p1, method),
-                        with_actor.then(|| scan_actor(&ta, &p1, &init1, method)),
+                        scan_target_critic(&t1, &p1, method),
+                        with_actor.then(|| scan_target_actor(&ta, &p1, &init1, method)),
                     )
                 })
             },

@@ -38,6 +38,12 @@
 //! `y_i = r_i + gamma Q'(o_{i+1}, mu'(o_{i+1}) | h'_i) (1 - term_i)`, each step bootstrapping
 //! from the next one along the window (`RdpgAgent::per_step_targets`).
 //!
+//! With `act_window = k` (window-of-k agents) every state the update reads is that of the
+//! acting actor's `k`-observation window: the scan (`s = k - 1`) starts from zero, the critic
+//! and the actor train on the window's first step only, and step 2a's bootstrap re-encodes the
+//! `k - 1` steps before `o_tail` from zero (`Prepared::window_tail`) instead of continuing the
+//! target networks' run along the window.
+//!
 //! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
 //! critic steps every time.
 //!
@@ -469,11 +475,11 @@ impl RdpgAgent {
             target_actor: self
                 .targets
                 .as_ref()
-                .map(|t| scan_actor(&t.actor, p, &actor_init, method)),
+                .map(|t| scan_target_actor(&t.actor, p, &actor_init, method)),
             target_critics: self.targets.as_ref().map_or_else(Vec::new, |t| {
                 t.critics
                     .iter()
-                    .map(|c| scan_critic(c, p, method))
+                    .map(|c| scan_target_critic(c, p, method))
                     .collect()
             }),
         })
@@ -552,10 +558,42 @@ pub(super) fn scan_critic(critic: &Critic, p: &Prepared, method: ScanMethod) -> 
     scan_state(&critic.core, &x, &p.scan_len, &init, method)
 }
 
+/// A target actor's `h_{-1}`: [`scan_actor`], except for window-of-k agents, whose bootstrap
+/// re-encodes its own window (`Prepared::window_tail`) and never reads it (`init` then).
+pub(super) fn scan_target_actor(
+    actor: &Actor,
+    p: &Prepared,
+    init: &RecState,
+    method: ScanMethod,
+) -> RecState {
+    match p.window_tail {
+        Some(_) => init.shallow_clone(),
+        None => scan_actor(actor, p, init, method),
+    }
+}
+
+/// A target critic's `h_{-1}`: [`scan_critic`], except for window-of-k agents (zeros, unread:
+/// see [`scan_target_actor`]).
+pub(super) fn scan_target_critic(critic: &Critic, p: &Prepared, method: ScanMethod) -> RecState {
+    match p.window_tail {
+        Some(_) => critic
+            .core
+            .zero_state(p.n, p.obs_win.kind(), p.obs_win.device()),
+        None => scan_critic(critic, p, method),
+    }
+}
+
 /// `Q'(o_tail, a_tail)` of target critic `c` from its scanned state `h`, `[N]` (call without
 /// gradient): its run along the window with `a_tail` at the tail position, or for a
 /// feed-forward critic one forward pass on the tail observation.
 pub(super) fn target_q(c: &Critic, p: &Prepared, h: &RecState, a_tail: &Tensor) -> Tensor {
+    if let Some(w) = &p.window_tail {
+        // Window-of-k: the k - 1 pairs before the tail from a zero state, then the tail.
+        let h0 = c.core.zero_state(p.n, p.obs_win.kind(), p.obs_win.device());
+        let x = c.input_seq(&w.obs, &w.act); // [N, k-1, E]
+        let h = scan_state(&c.core, &x, &w.len, &h0, ScanMethod::Grouped);
+        return c.step(&tail_obs(p), a_tail, &h).0;
+    }
     if c.core.is_recurrent() {
         tail_q(p, &critic_window(c, p, h, Some(a_tail)))
     } else {
@@ -614,6 +652,15 @@ pub(super) fn tail_q(p: &Prepared, q_ext: &Tensor) -> Tensor {
 /// `mu'(o_tail)` of `actor` from its scanned state: `[N, A]`. A feed-forward actor acts on
 /// the tail observation alone.
 pub(super) fn tail_action(actor: &Actor, p: &Prepared, h: &RecState) -> Tensor {
+    if let Some(w) = &p.window_tail {
+        // Window-of-k: the k - 1 observations before the tail from a zero state, as acting.
+        let h0 = actor
+            .core
+            .zero_state(p.n, p.obs_win.kind(), p.obs_win.device());
+        let x = actor.input_seq(&w.obs); // [N, k-1, E]
+        let h = scan_state(&actor.core, &x, &w.len, &h0, ScanMethod::Grouped);
+        return actor.step(&tail_obs(p), &h).0;
+    }
     if !actor.core.is_recurrent() {
         return actor.step(&tail_obs(p), h).0;
     }
