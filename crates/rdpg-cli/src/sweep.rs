@@ -553,6 +553,34 @@ impl TrialResult {
     }
 }
 
+/// What a run's files say beyond its summary: learner updates done, the validation curve
+/// `(agent step, mean stock return)` and the `versions.jsonl` lines.
+pub fn run_record(run: &RunDir) -> Result<(u64, Vec<(u64, f64)>, Vec<serde_json::Value>)> {
+    let metrics = run.read_metrics()?;
+    let updates = metrics
+        .iter()
+        .map(|m| match m {
+            Metric::Episode { learner, .. } => learner.updates,
+            Metric::Eval { .. } => 0,
+        })
+        .sum();
+    let curve = metrics
+        .iter()
+        .filter_map(|m| match *m {
+            Metric::Eval {
+                step, mean_return, ..
+            } => Some((step, mean_return)),
+            Metric::Episode { .. } => None,
+        })
+        .collect();
+    let versions = std::fs::read_to_string(run.versions())
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect();
+    Ok((updates, curve, versions))
+}
+
 /// Writes the result file of every finished trial; returns one line per file written.
 fn collect(sweep: &Sweep) -> Result<Vec<String>> {
     let mut out = Vec::new();
@@ -564,28 +592,7 @@ fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         if summary.steps < t.steps || summary.test_eval.is_none() {
             continue;
         }
-        let metrics = run.read_metrics()?;
-        let updates = metrics
-            .iter()
-            .map(|m| match m {
-                Metric::Episode { learner, .. } => learner.updates,
-                Metric::Eval { .. } => 0,
-            })
-            .sum();
-        let curve = metrics
-            .iter()
-            .filter_map(|m| match *m {
-                Metric::Eval {
-                    step, mean_return, ..
-                } => Some((step, mean_return)),
-                Metric::Episode { .. } => None,
-            })
-            .collect();
-        let versions = std::fs::read_to_string(run.versions())
-            .unwrap_or_default()
-            .lines()
-            .filter_map(|l| serde_json::from_str(l).ok())
-            .collect();
+        let (updates, curve, versions) = run_record(&run)?;
         let mut command = format!("rdpg train --config {}", t.base.display());
         for s in &t.set {
             command += &format!(" --set '{s}'");

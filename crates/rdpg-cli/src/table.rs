@@ -18,7 +18,7 @@ use rdpg_core::rng::NpRng;
 use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
 use rdpg_render::{rasterize, save_png};
 
-use crate::rundir::{read_json, Metric, RunDir};
+use crate::rundir::{read_json, RunDir};
 use crate::sweep::TrialResult;
 
 /// Arguments of `rdpg table`.
@@ -96,7 +96,7 @@ fn from_run(dir: &Path, row_index: usize) -> Result<TrialResult> {
     let run = RunDir::new(dir);
     let exp = run.experiment()?;
     let summary = run.read_summary()?;
-    let metrics = run.read_metrics()?;
+    let (updates, curve, versions) = crate::sweep::run_record(&run)?;
     Ok(TrialResult {
         sweep: String::new(),
         row: summary.name.clone(),
@@ -104,25 +104,11 @@ fn from_run(dir: &Path, row_index: usize) -> Result<TrialResult> {
         seed: exp.train.seed,
         paper: None,
         description: String::new(),
-        versions: Vec::new(),
+        versions,
         steps: summary.steps,
         frames: summary.steps * exp.train.action_repeat as u64,
-        updates: metrics
-            .iter()
-            .map(|m| match m {
-                Metric::Episode { learner, .. } => learner.updates,
-                Metric::Eval { .. } => 0,
-            })
-            .sum(),
-        curve: metrics
-            .iter()
-            .filter_map(|m| match *m {
-                Metric::Eval {
-                    step, mean_return, ..
-                } => Some((step, mean_return)),
-                Metric::Episode { .. } => None,
-            })
-            .collect(),
+        updates,
+        curve,
         summary,
         command: format!("rdpg train --resume {}", dir.display()),
     })
