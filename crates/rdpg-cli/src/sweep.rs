@@ -553,9 +553,18 @@ impl TrialResult {
     }
 }
 
-/// What a run's files say beyond its summary: learner updates done, the validation curve
-/// `(agent step, mean stock return)` and the `versions.jsonl` lines.
-pub fn run_record(run: &RunDir) -> Result<(u64, Vec<(u64, f64)>, Vec<serde_json::Value>)> {
+/// What a run's files say beyond its summary ([`run_record`]).
+pub struct RunRecord {
+    /// Learner updates done.
+    pub updates: u64,
+    /// Validation evaluations: (agent step, mean stock return).
+    pub curve: Vec<(u64, f64)>,
+    /// The `versions.jsonl` lines.
+    pub versions: Vec<serde_json::Value>,
+}
+
+/// Reads a run's [`RunRecord`] from its metrics and `versions.jsonl`.
+pub fn run_record(run: &RunDir) -> Result<RunRecord> {
     let metrics = run.read_metrics()?;
     let updates = metrics
         .iter()
@@ -578,7 +587,11 @@ pub fn run_record(run: &RunDir) -> Result<(u64, Vec<(u64, f64)>, Vec<serde_json:
         .lines()
         .filter_map(|l| serde_json::from_str(l).ok())
         .collect();
-    Ok((updates, curve, versions))
+    Ok(RunRecord {
+        updates,
+        curve,
+        versions,
+    })
 }
 
 /// Writes the result file of every finished trial; returns one line per file written.
@@ -592,7 +605,11 @@ fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         if summary.steps < t.steps || summary.test_eval.is_none() {
             continue;
         }
-        let (updates, curve, versions) = run_record(&run)?;
+        let RunRecord {
+            updates,
+            curve,
+            versions,
+        } = run_record(&run)?;
         let mut command = format!("rdpg train --config {}", t.base.display());
         for s in &t.set {
             command += &format!(" --set '{s}'");

@@ -96,7 +96,11 @@ fn from_run(dir: &Path, row_index: usize) -> Result<TrialResult> {
     let run = RunDir::new(dir);
     let exp = run.experiment()?;
     let summary = run.read_summary()?;
-    let (updates, curve, versions) = crate::sweep::run_record(&run)?;
+    let crate::sweep::RunRecord {
+        updates,
+        curve,
+        versions,
+    } = crate::sweep::run_record(&run)?;
     Ok(TrialResult {
         sweep: String::new(),
         row: summary.name.clone(),
