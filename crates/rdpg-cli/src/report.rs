@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
-use rdpg_render::{rasterize, save_png};
+use rdpg_render::save_png;
 
 use crate::rundir::{Metric, MovingAverage, RunDir, Summary};
 
@@ -127,6 +127,7 @@ fn write_curves(runs: &[Run], out: &Path) -> Result<()> {
                 name: r.label.clone(),
                 points: f(r),
                 color: PALETTE[i % PALETTE.len()],
+                band: Vec::new(),
             })
             .collect()
     };
@@ -147,7 +148,7 @@ fn write_curves(runs: &[Run], out: &Path) -> Result<()> {
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent)?;
     }
-    save_png(&rasterize(&figure(&plots, 2, 560, 400)), out)
+    save_png(&figure(&plots, 2, 560, 400)?, out)
         .with_context(|| format!("writing {}", out.display()))?;
     Ok(())
 }

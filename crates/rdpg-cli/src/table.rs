@@ -16,7 +16,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use rdpg_core::rng::NpRng;
 use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
-use rdpg_render::{rasterize, save_png};
+use rdpg_render::save_png;
 
 use crate::rundir::{read_json, RunDir};
 use crate::sweep::TrialResult;
@@ -399,14 +399,27 @@ pub fn run(a: &TableArgs) -> Result<()> {
     Ok(())
 }
 
-/// The validation curves of each row: the mean over seeds at the steps every seed evaluated.
+/// The validation curves of each row: the mean over seeds at the steps every seed evaluated,
+/// with a band of ± one standard deviation over seeds; x in frames where rows differ in action
+/// repeat.
 fn plot_rows(rows: &[Row], out: &Path) -> Result<()> {
+    let repeat = |t: &TrialResult| t.frames / t.steps.max(1);
+    let repeats: Vec<u64> = rows
+        .iter()
+        .flat_map(|r| r.trials.iter().map(repeat))
+        .collect();
+    let in_frames = repeats.windows(2).any(|w| w[0] != w[1]);
     let series: Vec<Series> = rows
         .iter()
         .enumerate()
         .map(|(i, r)| {
-            let first = &r.trials[0].curve;
-            let points = first
+            let scale = if in_frames {
+                repeat(&r.trials[0]) as f64
+            } else {
+                1.0
+            };
+            let at_steps: Vec<(f64, Vec<f64>)> = r.trials[0]
+                .curve
                 .iter()
                 .filter_map(|&(step, _)| {
                     let at: Vec<f64> = r
@@ -414,26 +427,33 @@ fn plot_rows(rows: &[Row], out: &Path) -> Result<()> {
                         .iter()
                         .filter_map(|t| t.curve.iter().find(|c| c.0 == step).map(|c| c.1))
                         .collect();
-                    (at.len() == r.trials.len()).then(|| (step as f64, mean_std(&at).0))
+                    (at.len() == r.trials.len()).then_some((step as f64 * scale, at))
                 })
                 .collect();
             Series {
                 name: format!("{} ({} seeds)", r.name, r.trials.len()),
-                points,
+                points: at_steps.iter().map(|(x, v)| (*x, mean_std(v).0)).collect(),
                 color: PALETTE[i % PALETTE.len()],
+                band: at_steps
+                    .iter()
+                    .map(|(x, v)| {
+                        let (m, s) = mean_std(v);
+                        (*x, m - s, m + s)
+                    })
+                    .collect(),
             }
         })
         .collect();
     let plot = LinePlot {
-        title: "Validation return, mean over seeds".into(),
-        x_label: "agent steps".into(),
+        title: "Validation return: mean and ± std over seeds".into(),
+        x_label: if in_frames { "frames" } else { "agent steps" }.into(),
         y_label: "mean return, stock reward".into(),
         series,
     };
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent)?;
     }
-    save_png(&rasterize(&figure(&[plot], 1, 720, 440)), out)
+    save_png(&figure(&[plot], 1, 720, 440)?, out)
         .with_context(|| format!("writing {}", out.display()))
 }
 

@@ -5,7 +5,8 @@
 //! `image` feature, so crates that only describe scenes (the environments) build without it:
 //! `rasterize` turns a [`Scene`] into a `Frame` (anti-aliased, via `tiny-skia`); `save_png`
 //! writes one frame, `GifWriter` an endlessly looping animation, `downscale` shrinks frames
-//! for smaller files, and `plot` draws line charts. Everything is pure Rust.
+//! for smaller files, and `plot` draws line charts (plotters, with DejaVu Sans embedded from
+//! the `dejavu` crate, never the machine's fonts). Everything is pure Rust.
 
 #![warn(missing_docs)]
 

@@ -1,9 +1,14 @@
-//! Line charts (learning curves) as [`Scene`]s: axes with numeric ticks, labels, a legend,
-//! text drawn from the public-domain 8x8 bitmap font of the `font8x8` crate.
+//! Line charts (learning curves) drawn with plotters into a [`Frame`]: axes with numeric ticks,
+//! labels, a legend, a shaded band per series (e.g. the spread over seeds), text in DejaVu Sans
+//! from the `dejavu` crate (never the machine's fonts).
 
-use font8x8::UnicodeFonts;
+use std::sync::OnceLock;
 
-use crate::{Rgb, Scene, Shape};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+use crate::{Frame, RenderError, Rgb};
 
 /// Distinguishable series colours (Tableau 10).
 pub const PALETTE: [Rgb; 10] = [
@@ -28,6 +33,9 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Colour.
     pub color: Rgb,
+    /// `(x, low, high)`: a band shaded in the series' colour (e.g. mean ± std over seeds);
+    /// empty for none.
+    pub band: Vec<(f64, f64, f64)>,
 }
 
 /// A line chart.
@@ -37,67 +45,27 @@ pub struct LinePlot {
     pub title: String,
     /// Label under the x axis.
     pub x_label: String,
-    /// Label of the y axis (written above it).
+    /// Label of the y axis.
     pub y_label: String,
     /// The lines.
     pub series: Vec<Series>,
 }
 
-const BLACK: Rgb = [0, 0, 0];
-const GRID: Rgb = [225, 225, 225];
+/// The font family every chart's text uses, registered once from the `dejavu` crate.
+const FAMILY: &str = "sans-serif";
 
-/// Squares for each lit pixel of `text` in the 8x8 font, top-left at `(x, y)`, each font pixel
-/// `scale` image pixels wide. Characters without a glyph are drawn as `?`.
-pub fn text(text: &str, x: f32, y: f32, scale: f32, color: Rgb) -> Vec<Shape> {
-    let mut shapes = Vec::new();
-    for (i, ch) in text.chars().enumerate() {
-        let glyph = font8x8::BASIC_FONTS
-            .get(ch)
-            .or_else(|| font8x8::LATIN_FONTS.get(ch))
-            .or_else(|| font8x8::BASIC_FONTS.get('?'))
-            .unwrap_or([0; 8]);
-        let gx = x + i as f32 * 8.0 * scale;
-        for (row, bits) in glyph.iter().enumerate() {
-            for col in 0..8 {
-                if bits & (1 << col) != 0 {
-                    let (px, py) = (gx + col as f32 * scale, y + row as f32 * scale);
-                    shapes.push(Shape::Polygon {
-                        points: vec![
-                            [px, py],
-                            [px + scale, py],
-                            [px + scale, py + scale],
-                            [px, py + scale],
-                        ],
-                        fill: color,
-                        outline: None,
-                    });
-                }
-            }
-        }
+fn register_font() -> Result<(), RenderError> {
+    static DONE: OnceLock<bool> = OnceLock::new();
+    let ok = *DONE.get_or_init(|| {
+        plotters::style::register_font(FAMILY, FontStyle::Normal, dejavu::sans::regular()).is_ok()
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(RenderError::InvalidArgument(
+            "the embedded DejaVu Sans font did not load".into(),
+        ))
     }
-    shapes
-}
-
-/// Width in pixels of `s` drawn by [`text`] at `scale`.
-pub fn text_width(s: &str, scale: f32) -> f32 {
-    s.chars().count() as f32 * 8.0 * scale
-}
-
-/// About `n` round tick values covering `[lo, hi]` (steps of 1, 2 or 5 times a power of 10).
-pub fn nice_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
-    if !(lo.is_finite() && hi.is_finite()) || hi <= lo || n == 0 {
-        return vec![lo];
-    }
-    let raw = (hi - lo) / n as f64;
-    let mag = 10f64.powf(raw.log10().floor());
-    let step = [1.0, 2.0, 5.0, 10.0]
-        .iter()
-        .map(|m| m * mag)
-        .find(|s| *s >= raw)
-        .unwrap_or(10.0 * mag);
-    let first = (lo / step).ceil() as i64;
-    let last = (hi / step).floor() as i64;
-    (first..=last).map(|k| k as f64 * step).collect()
 }
 
 /// A tick label: integers without decimals, large values with k / M suffixes.
@@ -117,148 +85,142 @@ pub fn tick_label(v: f64) -> String {
     }
 }
 
+fn plot_err(e: impl std::fmt::Display) -> RenderError {
+    RenderError::InvalidArgument(format!("drawing a chart: {e}"))
+}
+
+/// `lo..hi` widened to a non-empty range with a margin of 5 % on each side.
+fn padded(lo: f64, hi: f64) -> std::ops::Range<f64> {
+    let (lo, hi) = if lo.is_finite() && hi.is_finite() {
+        (lo, hi)
+    } else {
+        (0.0, 1.0)
+    };
+    let span = if hi > lo { hi - lo } else { lo.abs().max(1.0) };
+    (lo - 0.05 * span)..(hi + 0.05 * span)
+}
+
 impl LinePlot {
-    /// The chart drawn into the rectangle `(x0, y0, w, h)` of an image.
-    pub fn shapes(&self, x0: f32, y0: f32, w: f32, h: f32) -> Vec<Shape> {
-        let mut out = Vec::new();
-        let (left, right, top, bottom) = (x0 + 70.0, x0 + w - 15.0, y0 + 40.0, y0 + h - 45.0);
-        out.extend(text(
-            &self.title,
-            x0 + (w - text_width(&self.title, 2.0)) / 2.0,
-            y0 + 6.0,
-            2.0,
-            BLACK,
-        ));
-        out.extend(text(&self.y_label, left - 60.0, top - 14.0, 1.0, BLACK));
-        out.extend(text(
-            &self.x_label,
-            left + (right - left - text_width(&self.x_label, 1.0)) / 2.0,
-            bottom + 28.0,
-            1.0,
-            BLACK,
-        ));
-        let pts = || {
-            self.series
+    fn draw(&self, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), RenderError> {
+        let finite = |(x, y): &(f64, f64)| x.is_finite() && y.is_finite();
+        let xs = self
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().filter(|p| finite(p)).map(|p| p.0));
+        let ys = self.series.iter().flat_map(|s| {
+            s.points
                 .iter()
-                .flat_map(|s| s.points.iter())
-                .filter(|(x, y)| x.is_finite() && y.is_finite())
-        };
-        let (mut xlo, mut xhi, mut ylo, mut yhi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        for &(x, y) in pts() {
-            xlo = xlo.min(x);
-            xhi = xhi.max(x);
-            ylo = ylo.min(y);
-            yhi = yhi.max(y);
-        }
-        if xlo > xhi {
-            (xlo, xhi, ylo, yhi) = (0.0, 1.0, 0.0, 1.0);
-        }
-        if xhi - xlo < 1e-12 {
-            xhi = xlo + 1.0;
-        }
-        let pad = ((yhi - ylo) * 0.05).max(1e-9);
-        let (ylo, yhi) = if yhi - ylo < 1e-12 {
-            (ylo - 1.0, yhi + 1.0)
-        } else {
-            (ylo - pad, yhi + pad)
-        };
-        let sx = |x: f64| left + ((x - xlo) / (xhi - xlo)) as f32 * (right - left);
-        let sy = |y: f64| bottom - ((y - ylo) / (yhi - ylo)) as f32 * (bottom - top);
-        let line = |from: [f32; 2], to: [f32; 2], color: Rgb, width: f32| Shape::Line {
-            from,
-            to,
-            color,
-            width,
-        };
-        for t in nice_ticks(ylo, yhi, 6) {
-            let y = sy(t);
-            out.push(line([left, y], [right, y], GRID, 1.0));
-            let l = tick_label(t);
-            out.extend(text(
-                &l,
-                left - 6.0 - text_width(&l, 1.0),
-                y - 4.0,
-                1.0,
-                BLACK,
-            ));
-        }
-        for t in nice_ticks(xlo, xhi, 6) {
-            let x = sx(t);
-            out.push(line([x, top], [x, bottom], GRID, 1.0));
-            let l = tick_label(t);
-            out.extend(text(
-                &l,
-                x - text_width(&l, 1.0) / 2.0,
-                bottom + 8.0,
-                1.0,
-                BLACK,
-            ));
-        }
-        out.push(line([left, bottom], [right, bottom], BLACK, 1.5));
-        out.push(line([left, top], [left, bottom], BLACK, 1.5));
+                .filter(|p| finite(p))
+                .map(|p| p.1)
+                .chain(s.band.iter().flat_map(|b| [b.1, b.2]))
+                .filter(|v| v.is_finite())
+        });
+        let (x0, x1) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+            (a.min(x), b.max(x))
+        });
+        let (y0, y1) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
+            (a.min(y), b.max(y))
+        });
+        let mut chart = ChartBuilder::on(area)
+            .caption(&self.title, (FAMILY, 18))
+            .margin(12)
+            .x_label_area_size(42)
+            .y_label_area_size(58)
+            .build_cartesian_2d(padded(x0, x1), padded(y0, y1))
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(&self.x_label)
+            .y_desc(&self.y_label)
+            .x_labels(6)
+            .y_labels(6)
+            .x_label_formatter(&|v| tick_label(*v))
+            .y_label_formatter(&|v| tick_label(*v))
+            .light_line_style(RGBColor(238, 238, 238))
+            .label_style((FAMILY, 12))
+            .axis_desc_style((FAMILY, 13))
+            .draw()
+            .map_err(plot_err)?;
         for s in &self.series {
-            let mut prev: Option<[f32; 2]> = None;
-            for &(x, y) in &s.points {
-                if !(x.is_finite() && y.is_finite()) {
-                    prev = None;
-                    continue;
+            let c = RGBColor(s.color[0], s.color[1], s.color[2]);
+            let band: Vec<&(f64, f64, f64)> = s
+                .band
+                .iter()
+                .filter(|b| b.0.is_finite() && b.1.is_finite() && b.2.is_finite())
+                .collect();
+            if band.len() >= 2 {
+                let outline: Vec<(f64, f64)> = band
+                    .iter()
+                    .map(|b| (b.0, b.2))
+                    .chain(band.iter().rev().map(|b| (b.0, b.1)))
+                    .collect();
+                chart
+                    .draw_series(std::iter::once(Polygon::new(outline, c.mix(0.2).filled())))
+                    .map_err(plot_err)?;
+            }
+            // Non-finite points break the line into segments; the legend names the first.
+            let mut segments: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+            for p in &s.points {
+                match segments.last_mut() {
+                    Some(seg) if finite(p) => seg.push(*p),
+                    Some(seg) if !seg.is_empty() => segments.push(Vec::new()),
+                    _ => {}
                 }
-                let p = [sx(x), sy(y)];
-                if let Some(q) = prev {
-                    out.push(line(q, p, s.color, 2.0));
-                } else if s.points.len() == 1 {
-                    out.push(line([p[0] - 2.0, p[1]], [p[0] + 2.0, p[1]], s.color, 4.0));
+            }
+            for (k, seg) in segments.into_iter().filter(|g| !g.is_empty()).enumerate() {
+                let drawn = chart
+                    .draw_series(LineSeries::new(seg, c.stroke_width(2)))
+                    .map_err(plot_err)?;
+                if k == 0 {
+                    drawn.label(s.name.clone()).legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                    });
                 }
-                prev = Some(p);
             }
         }
-        // Legend, top left inside the axes.
-        for (i, s) in self.series.iter().enumerate() {
-            let y = top + 8.0 + i as f32 * 14.0;
-            out.push(line(
-                [left + 8.0, y + 4.0],
-                [left + 28.0, y + 4.0],
-                s.color,
-                3.0,
-            ));
-            out.extend(text(&s.name, left + 34.0, y, 1.0, BLACK));
+        if self.series.iter().any(|s| s.points.iter().any(finite)) {
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::LowerRight)
+                .background_style(WHITE.mix(0.85))
+                .border_style(RGBColor(160, 160, 160))
+                .label_font((FAMILY, 12))
+                .draw()
+                .map_err(plot_err)?;
         }
-        out
+        Ok(())
     }
 }
 
 /// Charts laid out in a grid of `cols` columns, each `w x h` pixels, on a white background.
-pub fn figure(plots: &[LinePlot], cols: usize, w: u32, h: u32) -> Scene {
+pub fn figure(plots: &[LinePlot], cols: usize, w: u32, h: u32) -> Result<Frame, RenderError> {
+    register_font()?;
     let cols = cols.max(1);
     let rows = plots.len().div_ceil(cols).max(1);
-    let mut shapes = Vec::new();
-    for (i, p) in plots.iter().enumerate() {
-        let (c, r) = ((i % cols) as f32, (i / cols) as f32);
-        shapes.extend(p.shapes(c * w as f32, r * h as f32, w as f32, h as f32));
+    let (width, height) = (w * cols as u32, h * rows as u32);
+    if width == 0 || height == 0 {
+        return Err(RenderError::InvalidArgument(format!(
+            "a {width}x{height} figure"
+        )));
     }
-    Scene {
-        width: w * cols as u32,
-        height: h * rows as u32,
-        background: [255, 255, 255],
-        shapes,
+    let mut rgb = vec![255u8; width as usize * height as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+        let areas = root.split_evenly((rows, cols));
+        for (p, area) in plots.iter().zip(&areas) {
+            p.draw(area)?;
+        }
+        root.present().map_err(plot_err)?;
     }
+    Ok(Frame { width, height, rgb })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rasterize;
 
     #[test]
-    fn ticks_are_round_and_cover_the_range() {
-        assert_eq!(
-            nice_ticks(0.0, 10.0, 5),
-            vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0]
-        );
-        assert_eq!(
-            nice_ticks(-1300.0, -150.0, 6),
-            vec![-1200.0, -1000.0, -800.0, -600.0, -400.0, -200.0]
-        );
+    fn tick_labels_are_short() {
         assert_eq!(tick_label(50_000.0), "50k");
         assert_eq!(tick_label(2_000_000.0), "2M");
         assert_eq!(tick_label(-250.0), "-250");
@@ -266,33 +228,49 @@ mod tests {
     }
 
     #[test]
-    fn a_chart_draws_its_lines_and_text() {
+    fn a_chart_draws_its_lines_band_and_text() {
         let plot = LinePlot {
             title: "eval".into(),
             x_label: "env steps".into(),
             y_label: "return".into(),
             series: vec![Series {
                 name: "rdpg".into(),
-                points: vec![(0.0, -1200.0), (25_000.0, -600.0), (50_000.0, -200.0)],
+                points: vec![
+                    (0.0, -1200.0),
+                    (25_000.0, -600.0),
+                    (f64::NAN, 0.0),
+                    (50_000.0, -200.0),
+                    (75_000.0, -100.0),
+                ],
                 color: PALETTE[3],
+                band: vec![
+                    (0.0, -1300.0, -1100.0),
+                    (25_000.0, -800.0, -400.0),
+                    (50_000.0, -300.0, -100.0),
+                ],
             }],
         };
-        let frame = rasterize(&figure(&[plot.clone(), plot], 2, 400, 300));
+        let frame = figure(&[plot.clone(), plot], 2, 400, 300).unwrap();
         assert_eq!((frame.width, frame.height), (800, 300));
-        let red = frame
-            .rgb
-            .chunks(3)
-            .filter(|p| p[0] > 150 && p[1] < 100)
-            .count();
-        let black = frame
-            .rgb
-            .chunks(3)
-            .filter(|p| p.iter().all(|&c| c < 40))
-            .count();
+        let px = |f: &dyn Fn(&[u8]) -> bool| frame.rgb.chunks(3).filter(|p| f(p)).count();
+        let red = px(&|p| p[0] > 150 && p[1] < 100 && p[2] < 100);
+        // The band: the series colour at 20 % over white.
+        let pink = px(&|p| p[0] > 235 && (190..235).contains(&p[1]) && (190..235).contains(&p[2]));
+        let dark = px(&|p| p.iter().all(|&c| c < 90));
         assert!(red > 300, "series line: {red} red pixels");
-        assert!(black > 1000, "axes and text: {black} dark pixels");
-        // Text renders the glyph pixels of the font.
-        // `A` is 0x0C 0x1E 0x33 0x33 0x3F 0x33 0x33 0x00: 28 lit pixels.
-        assert_eq!(text("A", 0.0, 0.0, 1.0, BLACK).len(), 28);
+        assert!(pink > 2000, "band: {pink} pink pixels");
+        assert!(dark > 1000, "axes and text: {dark} dark pixels");
+        // No series, an empty range: still a chart, no error.
+        let empty = LinePlot {
+            series: vec![],
+            ..LinePlot {
+                title: "t".into(),
+                x_label: "x".into(),
+                y_label: "y".into(),
+                series: vec![],
+            }
+        };
+        assert!(figure(&[empty], 1, 200, 150).is_ok());
+        assert!(figure(&[], 1, 0, 150).is_err());
     }
 }
