@@ -1643,3 +1643,44 @@ fn table1_sweep_resolves_each_row_to_its_paper_settings() {
             .arg("--collect"));
     }
 }
+
+/// A hand-made agent whose config asks for networks its weights file could never fill
+/// (`actor_hidden = 2e9`, a trunk of [50000, 50000]), resealed so that the checksums pass,
+/// gets a clear error naming `agent.json` from `rdpg eval`, before anything is allocated.
+#[test]
+fn crafted_agent_sizes_are_refused_before_allocation() {
+    let zoo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../zoo/walker-td3");
+    for (key, value) in [
+        ("actor_hidden", serde_json::json!(2_000_000_000u64)),
+        (
+            "trunk",
+            serde_json::json!({"mlp": {"hidden": [50000, 50000]}}),
+        ),
+    ] {
+        let dir = tmp(&format!("crafted-{key}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("agent")).unwrap();
+        for f in ["config.toml", "summary.json", "evals.csv"] {
+            std::fs::copy(zoo.join(f), dir.join(f)).unwrap();
+        }
+        std::fs::copy(
+            zoo.join("agent/weights.safetensors"),
+            dir.join("agent/weights.safetensors"),
+        )
+        .unwrap();
+        let mut meta = json_file(&zoo.join("agent/agent.json"));
+        meta["config"][key] = value;
+        std::fs::write(dir.join("agent/agent.json"), meta.to_string()).unwrap();
+        rdpg_agents::common::checkpoint::seal(&dir.join("agent")).unwrap();
+        let t0 = std::time::Instant::now();
+        fails(
+            rdpg().args(["eval", "--episodes", "1", "--run"]).arg(&dir),
+            &["agent.json", "does not belong to these weights"],
+        );
+        assert!(
+            t0.elapsed().as_secs() < 30,
+            "{key}: took {:?}",
+            t0.elapsed()
+        );
+    }
+}

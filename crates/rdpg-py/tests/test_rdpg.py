@@ -366,3 +366,24 @@ def test_a_policy_whose_config_does_not_fit_its_agent_is_refused(trained_run, tm
     config.write_text(text.replace('env = "CueMemory-v0"', 'env = "Pendulum-v1"'))
     with pytest.raises(ValueError, match="does not fit Pendulum-v1"):
         rdpg.Policy.load(run)
+
+
+def test_a_crafted_agent_is_a_value_error_before_anything_is_allocated(tmp_path):
+    """A zoo agent whose config asks for networks its weights could never fill (resealed so
+    that the checksums pass) raises ValueError naming agent.json, not a panic or an
+    allocation of gigabytes."""
+    import zlib
+
+    entry = tmp_path / "crafted"
+    shutil.copytree(ROOT / "zoo" / "walker-td3", entry)
+    meta_path = entry / "agent" / "agent.json"
+    meta = json.loads(meta_path.read_text())
+    meta["config"]["actor_hidden"] = 2_000_000_000
+    meta_path.write_text(json.dumps(meta))
+    files = {}
+    for name in ("agent.json", "weights.safetensors"):
+        data = (entry / "agent" / name).read_bytes()
+        files[name] = {"len": len(data), "crc32": zlib.crc32(data)}
+    (entry / "agent" / "manifest.json").write_text(json.dumps({"files": files}))
+    with pytest.raises(ValueError, match="does not belong to these weights"):
+        rdpg.Policy.load(entry)

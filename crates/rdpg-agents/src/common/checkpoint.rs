@@ -203,6 +203,58 @@ pub fn read_tensors(path: &Path) -> Result<HashMap<String, Tensor>> {
         .collect())
 }
 
+/// The number of values a safetensors file declares (the product of each tensor's shape,
+/// summed), read from its header alone: nothing is allocated for the tensors. A header that
+/// does not fit the file, or is not safetensors JSON, is an error naming the file.
+pub fn declared_values(path: &Path) -> Result<f64> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(|e| ckpt_err(path, e))?;
+    let len = f.metadata().map_err(|e| ckpt_err(path, e))?.len();
+    let mut n = [0u8; 8];
+    f.read_exact(&mut n)
+        .map_err(|_| ckpt_err(path, "truncated: no safetensors header"))?;
+    let n = u64::from_le_bytes(n);
+    if n > len.saturating_sub(8) || n > 100 << 20 {
+        return Err(ckpt_err(
+            path,
+            format!("its header claims {n} bytes, the file has {len}"),
+        ));
+    }
+    let mut header = vec![0u8; n as usize];
+    f.read_exact(&mut header)
+        .map_err(|_| ckpt_err(path, "truncated safetensors header"))?;
+    let header: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(&header)
+        .map_err(|e| ckpt_err(path, format!("corrupt safetensors header: {e}")))?;
+    Ok(header
+        .iter()
+        .filter(|(k, _)| *k != "__metadata__")
+        .map(|(_, v)| {
+            v["shape"].as_array().map_or(0.0, |s| {
+                s.iter().map(|d| d.as_f64().unwrap_or(0.0)).product::<f64>()
+            })
+        })
+        .sum())
+}
+
+/// Before any network is built from `meta` (its config): refuses a config whose networks
+/// would hold more values (`expected`, computed without allocating) than the weights file
+/// `weights` declares, so that a damaged or hand-made config cannot make the loader allocate
+/// what the file could never fill. The shapes themselves are checked when the weights load.
+pub fn check_sizes_against(weights: &Path, meta: &Path, expected: f64) -> Result<()> {
+    let declared = declared_values(weights)?;
+    if !(expected.is_finite() && expected <= declared) {
+        return Err(ckpt_err(
+            meta,
+            format!(
+                "describes networks of {expected:.0} values, but {} holds {declared:.0}: \
+                 the config does not belong to these weights",
+                weights.display()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Writes named tensors (copied to the CPU) as a safetensors file. A tensor holding NaN or
 /// infinity is refused ([`AgentError::Diverged`], naming it) and nothing is written: a diverged
 /// state never replaces a good checkpoint.

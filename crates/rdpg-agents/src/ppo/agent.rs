@@ -44,7 +44,7 @@ use super::config::PpoConfig;
 use super::gae::adapt_kl_coef;
 use crate::common::adam::{Adam, AdamConfig};
 use crate::common::checkpoint::{
-    ckpt_err, read_json, read_tensors, restore_vars, write_json, write_tensors,
+    check_sizes_against, ckpt_err, read_json, read_tensors, restore_vars, write_json, write_tensors,
 };
 use crate::common::tensor::{
     init_from_rng, resolve_device, tensor_to_vec, tensor_to_vec64, vars_with_prefix, Activation,
@@ -526,6 +526,18 @@ impl PpoAgent {
                 format!("bad kl_coef {}", meta.kl_coef),
             ));
         }
+        // Before any network is built: the policy and value MLPs and log_std, counted.
+        let mlp = |out: usize| {
+            let mut i = meta.obs_dim as f64;
+            let mut n = 0.0;
+            for &h in meta.config.hidden.iter().chain([&out]) {
+                n += i * h as f64 + h as f64;
+                i = h as f64;
+            }
+            n
+        };
+        let expected = mlp(meta.act_dim) + meta.act_dim as f64 + mlp(1);
+        check_sizes_against(&dir.join("weights.safetensors"), &meta_path, expected)?;
         let mut agent = Self::new(meta.config, meta.obs_dim, meta.act_dim, meta.seed)?;
         let weights = read_tensors(&dir.join("weights.safetensors"))?;
         if let Some((name, t)) = weights.iter().find(|(_, t)| t.kind() != Kind::Float) {

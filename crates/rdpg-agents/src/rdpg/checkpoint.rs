@@ -11,7 +11,7 @@ use tch::{Kind, Tensor};
 use super::agent::RdpgAgent;
 use super::config::RdpgConfig;
 use crate::common::checkpoint::{
-    ckpt_err, read_json, read_tensors, restore_vars, write_json, write_tensors,
+    check_sizes_against, ckpt_err, read_json, read_tensors, restore_vars, write_json, write_tensors,
 };
 use crate::common::tensor::{sorted_vars, DeviceSpec};
 use crate::error::Result;
@@ -121,8 +121,14 @@ impl RdpgAgent {
         } else {
             Kind::Float
         };
+        let weights_path = dir.join("weights.safetensors");
+        check_sizes_against(
+            &weights_path,
+            &meta_path,
+            cfg.param_count(meta.obs_dim, meta.act_dim),
+        )?;
         let mut agent = Self::new_with_kind(cfg, meta.obs_dim, meta.act_dim, meta.seed, kind)?;
-        let weights = read_tensors(&dir.join("weights.safetensors"))?;
+        let weights = read_tensors(&weights_path)?;
         let nets = std::iter::once(&agent.actor_vs).chain(&agent.critic_vs);
         for vs in nets {
             restore_vars(vs, &weights, "")?;

@@ -484,6 +484,52 @@ impl RdpgConfig {
         }
     }
 
+    /// The number of values of the actor and critic(s) this config builds for an environment
+    /// of these sizes, target copies included (FORK's models not counted), computed without
+    /// allocating: what a loader compares with a weights file before it builds anything.
+    pub fn param_count(&self, obs_dim: usize, act_dim: usize) -> f64 {
+        let (d, a) = (obs_dim as f64, act_dim as f64);
+        let linear = |i: f64, o: f64| i * o + o;
+        let trunk = |input: f64| match &self.trunk {
+            Trunk::Lidar => {
+                let (ch, k) = (self.lidar_channels as f64, self.lidar_kernel as f64);
+                let pooled = ((self.lidar_dim as f64 - k + 1.0) / 2.0).floor().max(0.0);
+                ch * k
+                    + ch
+                    + linear(ch * pooled, self.lidar_fc as f64)
+                    + linear(
+                        (input - self.lidar_dim as f64).max(0.0),
+                        self.body_fc as f64,
+                    )
+            }
+            Trunk::Mlp { hidden } => {
+                let mut n = 0.0;
+                let mut i = input;
+                for &h in hidden {
+                    n += linear(i, h as f64);
+                    i = h as f64;
+                }
+                n
+            }
+        };
+        let core = |e: f64, h: f64| match self.recurrent {
+            true => 4.0 * h * (e + h + 2.0),
+            false => linear(e, h),
+        };
+        let e = self.embed_dim() as f64;
+        let actor =
+            trunk(d) + core(e, self.actor_hidden as f64) + linear(self.actor_hidden as f64, a);
+        let af = self.critic_action_fc as f64;
+        let critic = match self.critic_action_fc {
+            0 => trunk(d + a),
+            _ => trunk(d) + linear(a, af),
+        } + core(e + af, self.critic_hidden as f64)
+            + linear(self.critic_hidden as f64, 1.0);
+        let critics = if self.twin_critic { 2.0 } else { 1.0 };
+        let copies = if self.tau > 0.0 { 2.0 } else { 1.0 };
+        copies * (actor + critics * critic)
+    }
+
     /// Checks that an environment with these sizes fits the trunk.
     pub fn check_dims(&self, obs_dim: usize, act_dim: usize) -> Result<()> {
         if act_dim == 0 {

@@ -2021,3 +2021,45 @@ fn window_configs_are_checked() {
         assert!(e.contains("act_window"), "{e}");
     }
 }
+
+/// `param_count` is the exact number of values the networks hold (targets included), for
+/// every trunk and core kind: what a loader compares with a weights file before building.
+#[test]
+fn param_count_is_exact() {
+    let ff = RdpgConfig {
+        recurrent: false,
+        opt_len: 1,
+        update_len: 1,
+        scan_len: 0,
+        ..mlp(7)
+    };
+    for cfg in [
+        tiny(),
+        mlp(7),
+        RdpgConfig {
+            twin_critic: true,
+            tau: 0.01,
+            ..tiny()
+        },
+        RdpgConfig {
+            critic_action_fc: 0,
+            tau: 0.01,
+            ..mlp(5)
+        },
+        ff,
+    ] {
+        let agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 0).unwrap();
+        let mut vs = vec![&agent.actor_vs];
+        vs.extend(&agent.critic_vs);
+        if let Some(t) = &agent.targets {
+            vs.push(&t.actor_vs);
+            vs.extend(&t.critic_vs);
+        }
+        let real: i64 = vs
+            .iter()
+            .flat_map(|v| sorted_vars(v))
+            .map(|(_, t)| t.numel() as i64)
+            .sum();
+        assert_eq!(cfg.param_count(OBS, ACT), real as f64, "{cfg:?}");
+    }
+}
