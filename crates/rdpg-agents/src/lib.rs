@@ -102,7 +102,7 @@ pub fn load_trainer(dir: &Path) -> Result<Box<dyn Trainer>> {
 /// `checkpoints/best/agent`) as a deterministic policy on the CPU-or-GPU device its config
 /// names.
 pub fn load_policy(algo: Algo, dir: &Path) -> Result<Box<dyn DeterministicPolicy>> {
-    common::checkpoint::verify(dir)?;
+    common::checkpoint::verify_agent(dir)?;
     Ok(match algo {
         Algo::Rdpg | Algo::Ddpg => Box::new(rdpg::RdpgPolicy::new(RdpgAgent::load_weights(dir)?)),
         Algo::Ppo => Box::new(ppo::PpoAgent::load_weights(dir)?),

@@ -58,11 +58,18 @@ pub struct RenderArgs {
 
 /// Runs `rdpg render` with a fixed policy or a run's trained agent.
 pub fn run(args: &RenderArgs) -> Result<()> {
+    if args.every == 0 || args.scale_down == 0 {
+        anyhow::bail!(
+            "--every {} and --scale-down {} must both be at least 1",
+            args.every,
+            args.scale_down
+        );
+    }
     let target = RenderTarget {
         gif: args.gif.clone(),
         png_dir: args.png_dir.clone(),
-        every: args.every.max(1),
-        scale_down: args.scale_down.max(1),
+        every: args.every,
+        scale_down: args.scale_down,
         max_steps: args.max_steps,
     };
     let (env_id, summary) = if let Some(run) = &args.run {

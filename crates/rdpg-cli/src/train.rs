@@ -299,6 +299,15 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             check_resume_edits(&then, &exp, &run.config())?;
         }
         if let Some(n) = a.steps {
+            if n < trainer.steps() {
+                bail!(
+                    "--steps {n} is below the {} steps {} has already done: a run cannot be \
+                     shortened (its agents chosen on validation are kept; `rdpg select --from` \
+                     and `--checkpoint STEP` reach earlier ones)",
+                    trainer.steps(),
+                    dir.display()
+                );
+            }
             exp.train.total_steps = n;
             exp.validate()?;
             std::fs::write(run.config(), exp.to_toml()?)

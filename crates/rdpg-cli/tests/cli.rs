@@ -418,6 +418,13 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             .arg(&bad),
         &["metrics.jsonl:1: bad metrics line"],
     );
+    // A resume cannot shorten a run: --steps below the steps done is an error, not a no-op.
+    fails(
+        rdpg()
+            .args(["train", "--quiet", "--steps", "300", "--resume"])
+            .arg(&one),
+        &["--steps 300 is below the 700 steps"],
+    );
     let weights = latest_weights;
     let rows = episode_rows;
     assert_eq!(weights(&one), weights(&two), "resumed run differs");
@@ -1681,6 +1688,51 @@ fn crafted_agent_sizes_are_refused_before_allocation() {
             t0.elapsed().as_secs() < 30,
             "{key}: took {:?}",
             t0.elapsed()
+        );
+    }
+}
+
+/// Arguments and files a careless or hostile user can give: an agent whose manifest was
+/// deleted (its zoo summary lists one) is refused, not loaded unchecked; a resume asked to
+/// stop before the steps already done and a render of every 0th frame are errors.
+#[test]
+fn missing_manifests_and_impossible_arguments_are_refused() {
+    let zoo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../zoo/walker-td3");
+    let entry = tmp("no-manifest");
+    let _ = std::fs::remove_dir_all(&entry);
+    std::fs::create_dir_all(entry.join("agent")).unwrap();
+    for f in [
+        "config.toml",
+        "summary.json",
+        "evals.csv",
+        "agent/agent.json",
+        "agent/weights.safetensors",
+    ] {
+        std::fs::copy(zoo.join(f), entry.join(f)).unwrap();
+    }
+    fails(
+        rdpg()
+            .args(["eval", "--episodes", "1", "--run"])
+            .arg(&entry),
+        &[
+            "manifest.json",
+            "missing, though the entry's summary.json lists it",
+        ],
+    );
+    for (every, scale) in [("0", "1"), ("1", "0")] {
+        fails(
+            rdpg()
+                .args([
+                    "render",
+                    "--env",
+                    "BipedalWalker-v3",
+                    "--max-steps",
+                    "3",
+                    "--gif",
+                ])
+                .arg(tmp("never.gif"))
+                .args(["--every", every, "--scale-down", scale]),
+            &["must both be at least 1"],
         );
     }
 }

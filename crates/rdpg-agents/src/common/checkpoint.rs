@@ -173,6 +173,47 @@ pub fn verify(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The agent format (RDPG's and PPO's `agent.json`) from which every saved agent directory is
+/// sealed: without its `manifest.json` such an agent is refused. Format 1 agents were written
+/// before or after sealing began, so one without a manifest loads with a warning, unless its
+/// zoo entry's `summary.json` lists the manifest.
+pub const SEALED_AGENT_FORMAT: u32 = 2;
+
+/// [`verify`] for an agent directory (`agent.json`, weights): a missing `manifest.json` is
+/// refused when the agent's format is [`SEALED_AGENT_FORMAT`] or later, or when the zoo entry
+/// around it lists one in its `summary.json`; an older agent without one loads with a warning
+/// naming it.
+pub fn verify_agent(dir: &Path) -> Result<()> {
+    if dir.join(MANIFEST).exists() {
+        return verify(dir);
+    }
+    let meta = dir.join("agent.json");
+    let format = read_json::<serde_json::Value>(&meta)?["format"]
+        .as_u64()
+        .unwrap_or(0);
+    let listed = dir
+        .parent()
+        .and_then(|entry| std::fs::read_to_string(entry.join("summary.json")).ok())
+        .is_some_and(|s| s.contains(&format!("agent/{MANIFEST}")));
+    if format >= u64::from(SEALED_AGENT_FORMAT) || listed {
+        return Err(ckpt_err(
+            &dir.join(MANIFEST),
+            if listed {
+                "missing, though the entry's summary.json lists it: the agent's files cannot \
+                 be checked"
+            } else {
+                "missing: every agent of this format is sealed, so its files cannot be checked"
+            },
+        ));
+    }
+    eprintln!(
+        "warning: {} has no {MANIFEST} (an agent written before rdpg sealed agents): its files \
+         are loaded unchecked",
+        dir.display()
+    );
+    Ok(())
+}
+
 /// Reads a file written by [`write_bin`]; a missing, truncated or corrupt file is a
 /// checkpoint error naming it.
 pub fn read_bin<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
@@ -445,5 +486,31 @@ mod tests {
             verify(&dir).unwrap();
         }
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// An agent without its manifest: refused from the sealed format on, or when its zoo
+    /// entry lists one; an older agent loads (with a warning).
+    #[test]
+    fn agents_without_a_manifest_are_refused_unless_older_than_sealing() {
+        let root = std::env::temp_dir().join(format!("rdpg-unsealed-{}", std::process::id()));
+        let dir = root.join("agent");
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("agent.json"), r#"{"format": 1}"#).unwrap();
+        verify_agent(&dir).unwrap();
+        std::fs::write(
+            root.join("summary.json"),
+            r#"{"files": [["agent/manifest.json", 200]]}"#,
+        )
+        .unwrap();
+        let e = verify_agent(&dir).unwrap_err().to_string();
+        assert!(e.contains("summary.json lists it"), "{e}");
+        std::fs::remove_file(root.join("summary.json")).unwrap();
+        std::fs::write(dir.join("agent.json"), r#"{"format": 2}"#).unwrap();
+        let e = verify_agent(&dir).unwrap_err().to_string();
+        assert!(e.contains("every agent of this format is sealed"), "{e}");
+        seal(&dir).unwrap();
+        verify_agent(&dir).unwrap();
+        std::fs::remove_dir_all(&root).unwrap();
     }
 }

@@ -44,7 +44,8 @@ use super::config::PpoConfig;
 use super::gae::adapt_kl_coef;
 use crate::common::adam::{Adam, AdamConfig};
 use crate::common::checkpoint::{
-    check_sizes_against, ckpt_err, read_json, read_tensors, restore_vars, write_json, write_tensors,
+    check_sizes_against, ckpt_err, read_json, read_tensors, restore_vars, write_json,
+    write_tensors, SEALED_AGENT_FORMAT,
 };
 use crate::common::tensor::{
     init_from_rng, resolve_device, tensor_to_vec, tensor_to_vec64, vars_with_prefix, Activation,
@@ -119,7 +120,8 @@ struct AgentMeta {
     updates: u64,
 }
 
-const AGENT_FORMAT: u32 = 1;
+/// The format written: [`SEALED_AGENT_FORMAT`] (format 1 agents load too).
+const AGENT_FORMAT: u32 = SEALED_AGENT_FORMAT;
 
 /// A feed-forward Gaussian policy and value function trained with PPO (adaptive KL penalty).
 ///
@@ -514,7 +516,7 @@ impl PpoAgent {
     fn load_impl(dir: &Path, with_optim: bool) -> Result<Self> {
         let meta_path = dir.join("agent.json");
         let meta: AgentMeta = read_json(&meta_path)?;
-        if meta.format != AGENT_FORMAT {
+        if !(1..=AGENT_FORMAT).contains(&meta.format) {
             return Err(ckpt_err(
                 &meta_path,
                 format!("unknown format {} (expected {AGENT_FORMAT})", meta.format),

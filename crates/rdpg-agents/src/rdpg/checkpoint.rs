@@ -11,7 +11,8 @@ use tch::{Kind, Tensor};
 use super::agent::RdpgAgent;
 use super::config::RdpgConfig;
 use crate::common::checkpoint::{
-    check_sizes_against, ckpt_err, read_json, read_tensors, restore_vars, write_json, write_tensors,
+    check_sizes_against, ckpt_err, read_json, read_tensors, restore_vars, write_json,
+    write_tensors, SEALED_AGENT_FORMAT,
 };
 use crate::common::tensor::{sorted_vars, DeviceSpec};
 use crate::error::Result;
@@ -33,7 +34,8 @@ struct CheckpointMeta {
     fork_bounds: Option<(f64, f64)>,
 }
 
-const CHECKPOINT_FORMAT: u32 = 1;
+/// The format written: [`SEALED_AGENT_FORMAT`] (format 1 agents load too).
+const CHECKPOINT_FORMAT: u32 = SEALED_AGENT_FORMAT;
 
 impl RdpgAgent {
     /// Writes networks (target networks included), optimiser moments, the update count and the
@@ -103,7 +105,7 @@ impl RdpgAgent {
     fn load_impl(dir: &Path, device: Option<DeviceSpec>, with_optim: bool) -> Result<Self> {
         let meta_path = dir.join("agent.json");
         let meta: CheckpointMeta = read_json(&meta_path)?;
-        if meta.format != CHECKPOINT_FORMAT {
+        if !(1..=CHECKPOINT_FORMAT).contains(&meta.format) {
             return Err(ckpt_err(
                 &meta_path,
                 format!(
