@@ -387,3 +387,24 @@ def test_a_crafted_agent_is_a_value_error_before_anything_is_allocated(tmp_path)
     (entry / "agent" / "manifest.json").write_text(json.dumps({"files": files}))
     with pytest.raises(ValueError, match="does not belong to these weights"):
         rdpg.Policy.load(entry)
+
+
+def test_bad_arguments_name_themselves():
+    """Misspelt keywords are a TypeError for the vector env as for the single one; negative
+    counts, indices and seeds a ValueError naming the argument, not a bare OverflowError."""
+    with pytest.raises(TypeError, match="action_repaet"):
+        rdpg.make_vec("BipedalWalker-v3", 2, action_repaet=3)
+    with pytest.raises(TypeError, match="rewad"):
+        gym.make_vec("rdpg/BipedalWalker-v3", num_envs=2, rewad="paper")
+    with pytest.raises(ValueError, match="num_envs = -1"):
+        rdpg.make_vec("BipedalWalker-v3", -1)
+    with pytest.raises(ValueError, match=r"hide_obs\[0\] = -1"):
+        rdpg.make_vec("BipedalWalker-v3", 2, hide_obs=[-1])
+    with pytest.raises(ValueError, match=r"hide_obs\[1\] = -3"):
+        gym.make("rdpg/BipedalWalker-v3", hide_obs=[2, -3])
+    with pytest.raises(ValueError, match="seed = -1"):
+        gym.make("rdpg/BipedalWalker-v3").reset(seed=-1)
+    with pytest.raises(ValueError, match="action_repeat = 0"):
+        gym.make("rdpg/BipedalWalker-v3", action_repeat=0)
+    v = gym.make_vec("rdpg/BipedalWalker-v3", num_envs=2)
+    assert v.reset(seed=5)[0].shape == (2, 24)

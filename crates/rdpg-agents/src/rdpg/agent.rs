@@ -511,7 +511,7 @@ impl RdpgAgent {
                 obs[k]
             )));
         }
-        let a = tch::no_grad(|| {
+        let (a, next) = tch::no_grad(|| {
             let o = Tensor::from_slice(obs)
                 .view([n as i64, self.obs_dim as i64])
                 .to_kind(self.kind)
@@ -525,16 +525,28 @@ impl RdpgAgent {
                 let h0 = actor.core.zero_state(n as i64, self.kind, self.device);
                 let x = actor.input_seq(&hist);
                 let h = scan_state(&actor.core, &x, &w.len, &h0, ScanMethod::Grouped);
-                return actor.step(&o, &h).0;
+                return actor.step(&o, &h);
             }
-            let (a, s) = actor.step(&o, &state.state);
-            state.state = s;
-            a
+            actor.step(&o, &state.state)
         });
+        // A finite observation far outside what the agent saw (e.g. 1e38) can overflow the
+        // recurrent state: refused, with the state left as it was, rather than carried on as
+        // NaN (for a window-of-k agent, the observation stays out of its window).
+        if self.actor.core.is_recurrent() {
+            let finite = |t: &Tensor| t.isfinite().all().int64_value(&[]) != 0;
+            if !(finite(&next.h) && finite(&next.c)) {
+                return Err(AgentError::Input(
+                    "this observation overflows the actor's recurrent state (values far outside \
+                     those it was trained on); the state is left as it was"
+                        .into(),
+                ));
+            }
+        }
         let a =
             crate::common::policy::check_action_finite(tensor_to_vec(&a), "the actor's action")?;
-        if let Some(w) = &mut state.window {
-            w.push(obs);
+        match &mut state.window {
+            Some(w) => w.push(obs),
+            None => state.state = next,
         }
         Ok(a)
     }

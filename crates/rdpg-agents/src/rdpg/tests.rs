@@ -2063,3 +2063,31 @@ fn param_count_is_exact() {
         assert_eq!(cfg.param_count(OBS, ACT), real as f64, "{cfg:?}");
     }
 }
+
+/// An observation far outside training's (1e38, finite) that overflows the LSTM state is an
+/// input error, and the state stays as it was: the next action is the one it would have been.
+#[test]
+fn an_overflowing_observation_leaves_the_state_as_it_was() {
+    let wide = |cfg: RdpgConfig| RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![64] },
+        actor_hidden: 32,
+        ..cfg
+    };
+    for cfg in [wide(tiny()), wide(window_cfg(3))] {
+        let agent = RdpgAgent::new(cfg, OBS, ACT, 4).unwrap();
+        let normal: Vec<f32> = (0..OBS).map(|i| 0.1 * i as f32).collect();
+        let (mut a, mut b) = (agent.initial_state(1), agent.initial_state(1));
+        agent.act(&normal, &mut a).unwrap();
+        agent.act(&normal, &mut b).unwrap();
+        // Finite, but the trunk's sums overflow: inf - inf downstream.
+        let huge = vec![f32::MAX; OBS];
+        match agent.act(&huge, &mut a) {
+            Err(crate::AgentError::Input(m)) => assert!(m.contains("overflows"), "{m}"),
+            other => panic!("expected an input error, got {other:?}"),
+        }
+        assert_eq!(
+            agent.act(&normal, &mut a).unwrap(),
+            agent.act(&normal, &mut b).unwrap()
+        );
+    }
+}

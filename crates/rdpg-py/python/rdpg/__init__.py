@@ -57,6 +57,20 @@ def _spaces(low: list[float], high: list[float]) -> spaces.Box:
     return spaces.Box(np.array(low, np.float32), np.array(high, np.float32), dtype=np.float32)
 
 
+def _count(name: str, value: Any, least: int = 0) -> int:
+    """``value`` as an int of at least ``least``, or a ValueError/TypeError naming ``name``
+    (rather than the extension's bare OverflowError)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name}: an int, got {type(value).__name__}")
+    if value < least:
+        raise ValueError(f"{name} = {value}: must be at least {least}")
+    return int(value)
+
+
+def _indices(name: str, values: Any) -> list[int]:
+    return [_count(f"{name}[{k}]", v) for k, v in enumerate(values)]
+
+
 def _action_bytes(action: Any, shape: tuple[int, ...]) -> bytes:
     a = np.asarray(action)
     if a.dtype.kind not in "fiu":
@@ -94,7 +108,14 @@ class RdpgEnv(gym.Env):
         # The time limit is Gymnasium's TimeLimit wrapper (added by gymnasium.make from the
         # registration, or by max_episode_steps=), as for Gymnasium's own walkers; with an
         # action repeat the env's own limit counts frames and ends the episode first.
-        self._env = _rdpg.Env(env_id, reward, list(hide_obs), False, fall_penalty, action_repeat)
+        self._env = _rdpg.Env(
+            env_id,
+            reward,
+            _indices("hide_obs", hide_obs),
+            False,
+            fall_penalty,
+            _count("action_repeat", action_repeat, 1),
+        )
         self.env_id = env_id
         self.render_mode = render_mode
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": _FPS.get(env_id, 30)}
@@ -102,6 +123,8 @@ class RdpgEnv(gym.Env):
         self.action_space = _spaces(*self._env.action_bounds())
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            _count("seed", seed)
         super().reset(seed=seed)
         obs = self._env.reset(seed)
         return _f32(obs, self.observation_space.shape), {}
@@ -148,12 +171,27 @@ class RdpgVectorEnv(VectorEnv):
         threads: int | None = None,
         fall_penalty: float | None = None,
         action_repeat: int = 1,
-        **_: Any,
+        max_episode_steps: int | None = None,
     ):
+        # `gymnasium.make_vec` passes the registration's `max_episode_steps`: each sub-env
+        # keeps its registered time limit, so only that value is accepted; any other keyword
+        # is a TypeError, as for the single env.
+        if max_episode_steps not in (None, ENV_IDS.get(env_id)):
+            raise ValueError(
+                f"max_episode_steps = {max_episode_steps}: the vector env keeps {env_id}'s "
+                f"registered limit {ENV_IDS.get(env_id)}"
+            )
+        hide = _indices("hide_obs", hide_obs)
         self._env = _rdpg.VecEnv(
-            env_id, num_envs, reward, list(hide_obs), threads, fall_penalty, action_repeat
+            env_id,
+            _count("num_envs", num_envs, 1),
+            reward,
+            hide,
+            None if threads is None else _count("threads", threads, 1),
+            fall_penalty,
+            _count("action_repeat", action_repeat, 1),
         )
-        one = _rdpg.Env(env_id, reward, list(hide_obs))
+        one = _rdpg.Env(env_id, reward, hide)
         self.num_envs = num_envs
         self.single_observation_space = _spaces(*one.observation_bounds())
         self.single_action_space = _spaces(*one.action_bounds())
@@ -165,9 +203,8 @@ class RdpgVectorEnv(VectorEnv):
         self._act_shape = (num_envs,) + self.single_action_space.shape
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        if seed is not None and not isinstance(seed, (int, np.integer)):
-            raise TypeError("seed: an int (sub-env i gets seed + i) or None")
         if seed is not None:
+            _count("seed", seed)
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
         return _f32(self._env.reset(None if seed is None else int(seed)), self._obs_shape), {}
 
@@ -219,7 +256,7 @@ class Policy:
         self._p.reset()
 
     def reset_one(self, i: int) -> None:
-        self._p.reset_one(i)
+        self._p.reset_one(_count("i", i))
 
     def act(self, obs) -> np.ndarray:
         o = np.asarray(obs, dtype=np.float32)
