@@ -121,7 +121,7 @@ def test_hardcore_training_options_as_kwargs():
     assert trunc and steps == -(-200 // k)
     vec = rdpg.make_vec("BipedalWalkerHardcore-v3", 2, action_repeat=k, fall_penalty=-1.0)
     vec.reset(seed=5)
-    with pytest.raises(ValueError, match="action repeat"):
+    with pytest.raises(ValueError, match="action_repeat = 0"):
         gym.make("rdpg/BipedalWalker-v3", action_repeat=0)
 
 
