@@ -228,6 +228,12 @@ pub fn run(a: &TableArgs) -> Result<()> {
         ),
         None => None,
     };
+    if versus.as_ref().is_some_and(Vec::is_empty) {
+        bail!(
+            "--versus {:?}: that row has no test episodes to compare with",
+            a.versus.as_deref().unwrap_or_default()
+        );
+    }
     let mut md = String::new();
     let first = &rows[0].trials[0];
     if !first.sweep.is_empty() {
