@@ -318,17 +318,32 @@ pub fn run(a: &TableArgs) -> Result<()> {
         let per_seed: Vec<String> = means.iter().map(|x| format!("{x:.1}")).collect();
         let _ = write!(
             md,
-            "| {} | {} | {} | {} | {} | {:.1} ± {:.1} | {:.1} [{:.1}, {:.1}] | {} | {} | {} | {} |",
+            "| {}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.name,
+            r.trials[0]
+                .summary
+                .teachers
+                .iter()
+                .map(|t| format!(" (taught by {})", t.label()))
+                .collect::<String>(),
             paper.as_ref().map_or("–", |p| p.label.as_str()),
             seeds.join(", "),
             steps_label,
-            per_seed.join(" / "),
-            m,
-            s,
-            iq,
-            lo,
-            hi,
+            if per_seed.is_empty() {
+                "– (no test episodes)".into()
+            } else {
+                per_seed.join(" / ")
+            },
+            if means.is_empty() {
+                "–".into()
+            } else {
+                format!("{m:.1} ± {s:.1}")
+            },
+            if pooled.is_empty() {
+                "–".into()
+            } else {
+                format!("{iq:.1} [{lo:.1}, {hi:.1}]")
+            },
             fmt_opt(success200),
             match (r100m, r100s) {
                 (Some(m), Some(s)) => format!("{m:.1} ± {s:.1}"),

@@ -512,6 +512,14 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             .unwrap();
     assert_eq!(teachers[0]["checkpoint"], "latest");
     assert_eq!(teachers[0]["episodes"], 4);
+    // `rdpg table` names the teacher beside the student's row too.
+    let out = ok(rdpg().arg("table").arg(&student));
+    assert!(
+        String::from_utf8_lossy(&out.stdout)
+            .contains("(taught by cue-rdpg (rdpg, latest; no test))"),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     // A student that sees the previous action too learns from the same file; one with another
     // action repeat is refused, naming both.
     let seeing = tmp("run-student-prev-action");
