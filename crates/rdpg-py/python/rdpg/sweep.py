@@ -211,7 +211,13 @@ def main(argv: list[str]) -> int:
     if plan.get("address"):
         ray.init(address=plan["address"])
     else:
-        ray.init(num_cpus=plan["cpus"], include_dashboard=False)
+        # Trials exchange only small dicts through Ray: a small object store (Ray's default
+        # reserves 30 % of the machine's memory) leaves the memory to the runs.
+        ray.init(
+            num_cpus=plan["cpus"],
+            include_dashboard=False,
+            object_store_memory=200 * 1024 * 1024,
+        )
     try:
         fn = tune.with_resources(make_trainable(plan), {"cpu": plan["threads"]})
         if tune.Tuner.can_restore(path):
