@@ -42,8 +42,8 @@ fn cpu_and_cuda_updates_agree() {
         let mut rng = NpRng::from_seed(3);
         for _ in 0..10 {
             let b = synthetic_batch(64, cfg.scan_len, cfg.opt_len, 24, 4, 0.3, &mut rng);
-            cpu.update(&b);
-            gpu.update(&b);
+            cpu.update(&b).unwrap();
+            gpu.update(&b).unwrap();
         }
         let mut worst = (-1.0f64, String::new());
         for ((name, a), (_, b)) in cpu.weights().iter().zip(gpu.weights().iter()) {

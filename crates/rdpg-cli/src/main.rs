@@ -21,6 +21,9 @@ mod table;
 mod train;
 mod zoo;
 
+#[cfg(test)]
+mod fuzz;
+
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 

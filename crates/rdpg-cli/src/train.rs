@@ -131,8 +131,9 @@ fn save_latest(
 }
 
 /// A rough upper estimate of the memory a run of `exp` needs, in bytes: the replay (or PPO's
-/// rollout), the environments, and the activations of one update. In floating point, so that
-/// absurd sizes give an absurd estimate rather than an overflow.
+/// rollout), the environments, the networks with their optimiser state, and the activations
+/// of one update. In floating point, so that absurd sizes give an absurd estimate rather than
+/// an overflow.
 fn memory_estimate(exp: &Experiment) -> Result<f64> {
     let env = rdpg_envs::make_with(&exp.train.env, &exp.train.env_options())?;
     let (obs, act) = (
@@ -160,19 +161,24 @@ fn memory_estimate(exp: &Experiment) -> Result<f64> {
             let steps = agent.scan_len as f64 + agent.opt_len as f64 + 1.0;
             // Inputs, gates and saved activations of the online and target networks.
             let batch = agent.batch_size as f64 * steps * 4.0 * (obs + act + 16.0 * width) * 4.0;
-            replay + batch
+            // Networks, targets, gradients and Adam's two moments.
+            let params = 5.0 * 4.0 * agent.param_count(obs as usize, act as usize);
+            replay + batch + params
         }
         rdpg_agents::Learner::Ppo(p) => {
             let rollout = p.rollout_steps as f64 * envs * 4.0 * (obs + act + 8.0);
             let width: f64 = p.hidden.iter().map(|&h| h as f64).sum();
-            rollout + p.minibatch_size as f64 * 4.0 * (obs + act + 8.0 * width) * 4.0
+            // Policy and value networks (square layers at most), gradients, Adam's moments.
+            let params =
+                2.0 * 4.0 * 4.0 * p.hidden.iter().map(|&h| (h as f64).powi(2)).sum::<f64>();
+            rollout + p.minibatch_size as f64 * 4.0 * (obs + act + 8.0 * width) * 4.0 + params
         }
     };
     Ok(bytes + envs * per_env)
 }
 
 /// Refuses a run whose [`memory_estimate`] exceeds the memory this machine has available.
-fn check_memory(exp: &Experiment) -> Result<()> {
+pub(crate) fn check_memory(exp: &Experiment) -> Result<()> {
     let need = memory_estimate(exp)?;
     let available = crate::rundir::meminfo_bytes("MemAvailable");
     let gib = |b: f64| b / (1u64 << 30) as f64;

@@ -921,7 +921,7 @@ fn train_rejects_bad_configs_naming_the_key() {
         ),
         // Runs that cannot fit this machine are refused at once, with the estimate.
         ("off_policy.replay_capacity=1000000000000", "GiB available"),
-        ("agent.batch_size=100000000", "agent.batch_size"),
+        ("agent.batch_size=100000000", "batch_size"),
         ("train.num_envs=100000", "train.num_envs"),
         // Sizes that would overflow the estimate, or libtorch's thread count.
         ("train.num_envs=35184372088832", "train.num_envs"),

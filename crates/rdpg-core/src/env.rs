@@ -4,7 +4,7 @@
 //! was cut, typically by a time limit: bootstrap from the next observation) are kept apart from
 //! the environment all the way to the loss.
 
-use crate::{BoxSpace, EnvError};
+use crate::{BoxSpace, EnvError, NpRng};
 
 /// Extra information returned by `reset` and `step`, like Gymnasium's `info` dict, restricted
 /// to what rdpg's tools use.
@@ -87,7 +87,12 @@ pub trait Env: Send {
     fn action_space(&self) -> &BoxSpace;
     /// Starts a new episode. With `Some(seed)` the environment's random generator is re-seeded
     /// (as Gymnasium's `reset(seed=...)`); with `None` it continues its current stream.
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError>;
+    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        self.reset_with(seed.map(NpRng::from_seed))
+    }
+    /// [`Env::reset`] with the environment's new random generator given (e.g.
+    /// [`NpRng::from_seed_words`] for a seed past `u64`); `None` continues the current stream.
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError>;
     /// Advances one step with `action`.
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError>;
     /// Maximum episode length when the environment is wrapped in its registered time limit.
@@ -106,8 +111,8 @@ impl<E: Env + ?Sized> Env for Box<E> {
     fn action_space(&self) -> &BoxSpace {
         (**self).action_space()
     }
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        (**self).reset(seed)
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        (**self).reset_with(rng)
     }
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
         (**self).step(action)

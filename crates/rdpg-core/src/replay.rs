@@ -189,10 +189,20 @@ impl Episode {
             return Err(ReplayError::EmptyEpisode);
         }
         let dim = check_dim;
-        dim("episode obs", (n + 1) * config.obs_dim, self.obs.len())?;
-        dim("episode actions", n * config.act_dim, self.actions.len())?;
+        // Saturating: sizes read from a file may be absurd, and then they do not match.
+        let times = |a: usize, b: usize| a.saturating_mul(b);
+        dim("episode obs", times(n + 1, config.obs_dim), self.obs.len())?;
+        dim(
+            "episode actions",
+            times(n, config.act_dim),
+            self.actions.len(),
+        )?;
         if !self.states.is_empty() {
-            dim("episode states", n * config.state_dim, self.states.len())?;
+            dim(
+                "episode states",
+                times(n, config.state_dim),
+                self.states.len(),
+            )?;
         }
         Ok(())
     }
@@ -467,6 +477,10 @@ impl EpisodicReplay {
     /// episode closes and becomes sampleable. Oldest closed episodes are evicted while the
     /// buffer is over capacity. A rejected step (wrong sizes) stores nothing.
     #[allow(clippy::too_many_arguments)] // one argument per field of a Gymnasium step
+    #[allow(
+        clippy::expect_used,
+        reason = "the step-wise API keeps an open episode after the first push"
+    )]
     pub fn push(
         &mut self,
         obs: &[f32],
@@ -519,6 +533,10 @@ impl EpisodicReplay {
     /// their own budget, `floor(max_injected_fraction * capacity)`; adding an agent episode
     /// evicts the oldest agent episodes while the agent's transitions exceed `capacity`. The
     /// open episode is left alone.
+    #[allow(
+        clippy::expect_used,
+        reason = "injected transitions are counted from the injected episodes held"
+    )]
     pub fn add_episode(&mut self, mut episode: Episode) -> Result<(), ReplayError> {
         let cfg = self.store.config;
         if cfg.state_dim == 0 {
@@ -563,6 +581,10 @@ impl EpisodicReplay {
     /// included) exceed the capacity. Injected episodes are not touched. The open episode is
     /// never evicted, nor the newest closed agent episode when no step is open: capacity is
     /// exceeded only by a buffer holding one single agent episode longer than the capacity.
+    #[allow(
+        clippy::expect_used,
+        reason = "agent transitions are counted from the agent episodes held"
+    )]
     fn evict_over_capacity(&mut self) {
         while self.agent_len_transitions() > self.store.config.capacity {
             let closed = self.store.agent.len();
@@ -586,6 +608,10 @@ impl EpisodicReplay {
     /// # Panics
     ///
     /// If `opt == 0`.
+    #[allow(
+        clippy::expect_used,
+        reason = "positions count steps held in memory, far below i64::MAX"
+    )]
     pub fn sample(
         &self,
         rng: &mut NpRng,
@@ -625,6 +651,10 @@ impl EpisodicReplay {
     /// # Panics
     ///
     /// If `opt == 0` or `injected_share` is not in `[0, 1]`.
+    #[allow(
+        clippy::expect_used,
+        reason = "positions count steps held in memory, far below i64::MAX"
+    )]
     pub fn sample_mixed(
         &self,
         rng: &mut NpRng,

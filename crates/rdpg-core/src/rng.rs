@@ -118,13 +118,32 @@ fn seed_sequence_state(entropy: &[u32]) -> [u64; 4] {
 }
 
 /// An integer seed as numpy's SeedSequence sees it: little-endian 32-bit words, `[0]` for 0.
-fn seed_words(seed: u64) -> Vec<u32> {
-    let (lo, hi) = (seed as u32, (seed >> 32) as u32);
-    if hi == 0 {
-        vec![lo]
-    } else {
-        vec![lo, hi]
+pub fn seed_words(seed: u64) -> Vec<u32> {
+    seed_words_plus(&[seed as u32, (seed >> 32) as u32], 0)
+}
+
+/// The seed words (see [`seed_words`]) of the integer `words + k`, for seeds of any size (as
+/// Gymnasium's vector envs seed env `i` with `seed + i`): little-endian, without high zero
+/// words, `[0]` for 0.
+pub fn seed_words_plus(words: &[u32], k: u64) -> Vec<u32> {
+    let mut out = Vec::with_capacity(words.len() + 2);
+    let mut carry = u128::from(k);
+    for &w in words {
+        let v = u128::from(w) + (carry & 0xffff_ffff);
+        out.push(v as u32);
+        carry = (carry >> 32) + (v >> 32);
     }
+    while carry > 0 {
+        out.push(carry as u32);
+        carry >>= 32;
+    }
+    while out.len() > 1 && out.last() == Some(&0) {
+        out.pop();
+    }
+    if out.is_empty() {
+        out.push(0);
+    }
+    out
 }
 
 impl NpRng {
@@ -132,6 +151,12 @@ impl NpRng {
     /// `gymnasium.utils.seeding.np_random(seed)` (or `np.random.default_rng(seed)`).
     pub fn from_seed(seed: u64) -> Self {
         Self::from_entropy_words(&seed_words(seed))
+    }
+
+    /// [`NpRng::from_seed`] for a seed of any size, given as its little-endian 32-bit words
+    /// (high zero words ignored): Gymnasium accepts any non-negative integer as a seed.
+    pub fn from_seed_words(words: &[u32]) -> Self {
+        Self::from_entropy_words(&seed_words_plus(words, 0))
     }
 
     /// A generator seeded from 128 bits of process-local entropy (the clock, a counter and
@@ -360,6 +385,10 @@ impl NpRng {
     /// # Panics
     ///
     /// If `n == 0` or `n > i64::MAX`.
+    #[allow(
+        clippy::expect_used,
+        reason = "documented: n > i64::MAX is no slice length on a 64-bit machine"
+    )]
     pub fn choice_index(&mut self, n: usize) -> usize {
         let high = i64::try_from(n).expect("choice_index: n exceeds i64::MAX");
         self.integers(0, high) as usize
@@ -687,6 +716,23 @@ mod tests {
                 assert_eq!(rng.next_u64(), want, "seed {seed} raw #{k}");
             }
         }
+    }
+
+    #[test]
+    fn seeds_of_any_size_match_numpy() {
+        // `np.random.default_rng(seed).random()` for 2**64, 2**64 + 5 and 2**100.
+        let cases: [(&[u32], f64); 3] = [
+            (&[0, 0, 1], 0.4492388188116676),
+            (&[5, 0, 1], 0.7426581154321283),
+            (&[0, 0, 0, 16], 0.004225874802662788),
+        ];
+        for (words, want) in cases {
+            assert_eq!(NpRng::from_seed_words(words).random(), want, "{words:?}");
+        }
+        assert_eq!(seed_words_plus(&[u32::MAX, u32::MAX], 1), vec![0, 0, 1]);
+        assert_eq!(seed_words_plus(&[5, 0, 1], u64::MAX), vec![4, 0, 2]);
+        assert_eq!(seed_words(0), vec![0]);
+        assert_eq!(NpRng::from_seed_words(&[7, 0, 0]), NpRng::from_seed(7));
     }
 
     #[test]

@@ -101,9 +101,9 @@ impl Env for CueMemory {
     fn action_space(&self) -> &BoxSpace {
         &self.act_space
     }
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        if let Some(s) = seed {
-            self.rng = Some(NpRng::from_seed(s));
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        if rng.is_some() {
+            self.rng = rng;
         }
         let rng = self.rng.get_or_insert_with(NpRng::from_entropy);
         self.cue = if rng.random() < 0.5 { -1.0 } else { 1.0 };

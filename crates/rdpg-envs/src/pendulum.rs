@@ -79,11 +79,11 @@ impl Env for Pendulum {
     fn action_space(&self) -> &BoxSpace {
         &self.act_space
     }
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
         // Physics in IEEE mode whatever the thread (learners flush subnormals).
         rdpg_core::fpmode::with_ieee_denormals(|| {
-            if let Some(s) = seed {
-                self.rng = Some(NpRng::from_seed(s));
+            if rng.is_some() {
+                self.rng = rng;
             }
             let rng = self.rng.get_or_insert_with(NpRng::from_entropy);
             let th = rng.uniform(-std::f64::consts::PI, std::f64::consts::PI);

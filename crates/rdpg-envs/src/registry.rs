@@ -71,6 +71,10 @@ pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
 
 /// [`make`] with options. Wrapping order, inside out: the env, the observation mask, the time
 /// limit, the fall penalty, the action repeat, the previous action.
+#[allow(
+    clippy::expect_used,
+    reason = "every registered env has a time limit (registry test)"
+)]
 pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvError> {
     let walker = id.starts_with("BipedalWalker");
     if opts.fall_penalty.is_some() && !walker {

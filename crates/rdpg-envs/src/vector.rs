@@ -15,8 +15,9 @@
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::thread::JoinHandle;
 
+use rdpg_core::rng::{seed_words, seed_words_plus};
 use rdpg_core::spin::recv_spin;
-use rdpg_core::{EnvError, EnvInfo};
+use rdpg_core::{EnvError, EnvInfo, NpRng};
 
 use crate::registry::AnyEnv;
 
@@ -38,8 +39,9 @@ pub struct VecStep {
 }
 
 enum Cmd {
-    /// Reset with `seed + i`, only the envs whose flag is set (all when `None`).
-    Reset(Option<u64>, Option<Vec<bool>>),
+    /// Reset with `seed + i` (the seed as its 32-bit words), only the envs whose flag is set
+    /// (all when `None`).
+    Reset(Option<Vec<u32>>, Option<Vec<bool>>),
     ResetScheduled(u64, Vec<u64>),
     /// One action per env; `None` leaves that env untouched.
     Step(Vec<Option<Vec<f32>>>),
@@ -201,6 +203,16 @@ impl VecEnv {
         seed: Option<u64>,
         which: Option<&[bool]>,
     ) -> Result<Vec<Vec<f32>>, EnvError> {
+        self.reset_some_words(seed.map(seed_words).as_deref(), which)
+    }
+
+    /// [`VecEnv::reset_some`] for a seed of any size, given as its little-endian 32-bit words
+    /// (Gymnasium accepts any non-negative integer; env `i` gets `seed + i`).
+    pub fn reset_some_words(
+        &mut self,
+        seed: Option<&[u32]>,
+        which: Option<&[bool]>,
+    ) -> Result<Vec<Vec<f32>>, EnvError> {
         if which.is_some_and(|w| w.len() != self.num_envs) {
             return Err(EnvError::Config(format!(
                 "reset flags for {} envs",
@@ -211,7 +223,7 @@ impl VecEnv {
         let mut start = 0;
         for w in &mut self.workers {
             let flags = which.map(|f| f[start..start + w.count].to_vec());
-            send(w, Cmd::Reset(seed, flags))?;
+            send(w, Cmd::Reset(seed.map(<[u32]>::to_vec), flags))?;
             start += w.count;
         }
         Ok(self.collect()?.into_iter().map(|s| s.obs).collect())
@@ -251,6 +263,10 @@ impl VecEnv {
 
     /// Rebuilds env `env`'s current episode: resets it with the schedule's seed for its current
     /// episode index and replays `actions`; returns the observation after them.
+    #[allow(
+        clippy::expect_used,
+        reason = "a worker answers a one-env command with one step"
+    )]
     pub fn restore(&mut self, env: usize, actions: Vec<Vec<f32>>) -> Result<Vec<f32>, EnvError> {
         let base = self
             .schedule
@@ -319,6 +335,7 @@ impl VecEnv {
     }
 }
 
+#[allow(clippy::expect_used, reason = "the sender is dropped only in Drop")]
 fn send(w: &mut Worker, cmd: Cmd) -> Result<(), EnvError> {
     match &mut w.link {
         Link::Remote { tx, .. } => tx
@@ -333,6 +350,7 @@ fn send(w: &mut Worker, cmd: Cmd) -> Result<(), EnvError> {
     }
 }
 
+#[allow(clippy::expect_used, reason = "receive follows send on the same link")]
 fn receive(w: &mut Worker) -> Reply {
     match &mut w.link {
         Link::Remote { rx, .. } => recv_spin(rx)
@@ -405,8 +423,10 @@ impl Shard {
                         if flags.as_ref().is_some_and(|f| !f[i]) {
                             return Ok(fresh(Vec::new(), EnvInfo::default()));
                         }
-                        let (obs, info) =
-                            env.reset(seed.map(|s| s.wrapping_add(first + i as u64)))?;
+                        let rng = seed
+                            .as_ref()
+                            .map(|s| NpRng::from_seed_words(&seed_words_plus(s, first + i as u64)));
+                        let (obs, info) = env.reset_with(rng)?;
                         Ok(fresh(obs, info))
                     })
                     .collect()

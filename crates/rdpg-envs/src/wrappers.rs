@@ -3,7 +3,7 @@
 //! repeat) and the previous action in the observation (an input recurrent agents commonly read).
 
 use crate::Renderable;
-use rdpg_core::{BoxSpace, Env, EnvError, EnvInfo, Step};
+use rdpg_core::{BoxSpace, Env, EnvError, EnvInfo, NpRng, Step};
 
 /// `Env` methods a wrapper passes to its `inner` env unchanged, by name.
 macro_rules! delegate {
@@ -14,8 +14,8 @@ macro_rules! delegate {
     };
     (@one action_space) => { fn action_space(&self) -> &BoxSpace { self.inner.action_space() } };
     (@one reset) => {
-        fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-            self.inner.reset(seed)
+        fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+            self.inner.reset_with(rng)
         }
     };
     (@one max_episode_steps) => {
@@ -74,9 +74,9 @@ impl<E: Env> TimeLimit<E> {
 
 impl<E: Env> Env for TimeLimit<E> {
     delegate!(id, observation_space, action_space);
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
         self.elapsed = 0;
-        let out = self.inner.reset(seed)?;
+        let out = self.inner.reset_with(rng)?;
         self.needs_reset = false;
         Ok(out)
     }
@@ -159,8 +159,8 @@ impl<E: Env> Env for ObsMask<E> {
     fn observation_space(&self) -> &BoxSpace {
         &self.space
     }
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        let (obs, info) = self.inner.reset(seed)?;
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        let (obs, info) = self.inner.reset_with(rng)?;
         Ok((self.mask(obs), info))
     }
     fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
@@ -278,8 +278,8 @@ impl<E: Env> Env for PrevAction<E> {
     fn observation_space(&self) -> &BoxSpace {
         &self.space
     }
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
-        let (obs, info) = self.inner.reset(seed)?;
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        let (obs, info) = self.inner.reset_with(rng)?;
         let mut out = vec![0.0; self.inner.action_space().dim()];
         out.extend(obs);
         Ok((out, info))

@@ -11,6 +11,12 @@
 //! `f64` (rewards); the Python side views them with `numpy.frombuffer`, without copies of
 //! Python objects per element. Every error is a Python exception carrying the Rust message.
 
+// Python gets an exception with the Rust message, never a PanicException.
+#![cfg_attr(
+    not(test),
+    deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
+)]
+
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -145,11 +151,17 @@ impl Env {
         (s.low.clone(), s.high.clone())
     }
 
-    /// Resets (with `seed`, or continuing the env's random stream): the observation bytes.
+    /// Resets (with the seed given as its little-endian 32-bit words, any size, or continuing
+    /// the env's random stream): the observation bytes.
     #[pyo3(signature = (seed = None))]
-    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyBytes>> {
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        seed: Option<Vec<u32>>,
+    ) -> PyResult<Bound<'py, PyBytes>> {
         let env = self.env();
-        let (obs, _) = py.detach(|| env.reset(seed)).map_err(runtime_err)?;
+        let rng = seed.map(|w| rdpg_core::NpRng::from_seed_words(&w));
+        let (obs, _) = py.detach(|| env.reset_with(rng)).map_err(runtime_err)?;
         Ok(f32_bytes(py, &obs))
     }
 
@@ -254,9 +266,14 @@ impl VecEnv {
         (self.obs_dim, self.act_dim)
     }
 
-    /// Resets every env (env `i` with `seed + i` when a seed is given): `[n, obs_dim]` bytes.
+    /// Resets every env (env `i` with `seed + i` when a seed is given, as its little-endian
+    /// 32-bit words, any size): `[n, obs_dim]` bytes.
     #[pyo3(signature = (seed = None))]
-    fn reset<'py>(&mut self, py: Python<'py>, seed: Option<u64>) -> PyResult<Bound<'py, PyBytes>> {
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        seed: Option<Vec<u32>>,
+    ) -> PyResult<Bound<'py, PyBytes>> {
         let inner = self.inner.get_mut().unwrap_or_else(|p| p.into_inner());
         // Without a seed, an env whose episode just ended has already been reset (unseeded)
         // inside the vector env: its pending first observation is its reset, as one reset in
@@ -265,7 +282,7 @@ impl VecEnv {
             .is_none()
             .then(|| self.pending_reset.iter().map(Option::is_none).collect());
         let obs = py
-            .detach(|| inner.reset_some(seed, which.as_deref()))
+            .detach(|| inner.reset_some_words(seed.as_deref(), which.as_deref()))
             .map_err(runtime_err)?;
         let obs: Vec<f32> = obs
             .into_iter()

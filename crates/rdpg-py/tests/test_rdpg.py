@@ -151,6 +151,22 @@ def test_vector_env_equals_gymnasium_sync_vector_env_with_next_step_autoreset():
     assert ended >= 2 and reset_after_end, "the autoreset path was not exercised"
 
 
+def test_seeds_past_64_bits_seed_as_gymnasium_does():
+    # Gymnasium seeds numpy's SeedSequence with any non-negative int; env i of a vector env
+    # gets seed + i, past 2**64 too.
+    for seed in [2**64 - 1, 2**64, 2**100 + 7]:
+        ours, _ = gym.make("rdpg/BipedalWalkerHardcore-v3").reset(seed=seed)
+        theirs, _ = gym.make("BipedalWalkerHardcore-v3").reset(seed=seed)
+        assert np.array_equal(ours, theirs), seed
+    ours = gym.make_vec("rdpg/BipedalWalker-v3", num_envs=2, vectorization_mode="vector_entry_point")
+    theirs = gym.vector.SyncVectorEnv([lambda: gym.make("BipedalWalker-v3") for _ in range(2)])
+    oa, _ = ours.reset(seed=2**64 - 1)
+    ob, _ = theirs.reset(seed=2**64 - 1)
+    assert np.array_equal(oa, ob)
+    act = np.full((2, 4), 0.3, np.float32)
+    assert np.array_equal(ours.step(act)[0], theirs.step(act)[0])
+
+
 def test_bad_input_raises_with_the_rust_message():
     with pytest.raises(ValueError, match="Nope-v0"):
         rdpg.RdpgEnv("Nope-v0")

@@ -9,6 +9,12 @@
 //! the `dejavu` crate, never the machine's fonts). Everything is pure Rust.
 
 #![warn(missing_docs)]
+// No panic reachable from a file or an argument: errors are returned; each remaining invariant
+// is allowed where it holds, with its reason.
+#![cfg_attr(
+    not(test),
+    deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
+)]
 
 /// An RGB colour.
 pub type Rgb = [u8; 3];

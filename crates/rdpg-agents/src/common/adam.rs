@@ -167,7 +167,18 @@ impl Adam {
                 .ok_or_else(|| AgentError::Checkpoint(format!("missing optimiser tensor `{k}`")))
         };
         let step = get(format!("{prefix}step"))?;
-        self.step = step.int64_value(&[0]);
+        let step = match step.numel() {
+            1 => step.f_int64_value(&[0]).ok(),
+            _ => None,
+        }
+        .filter(|s| (0..=crate::common::checkpoint::MAX_UPDATES as i64).contains(s))
+        .ok_or_else(|| {
+            AgentError::Checkpoint(format!(
+                "optimiser tensor `{prefix}step` is not one step count from 0 to {}",
+                crate::common::checkpoint::MAX_UPDATES
+            ))
+        })?;
+        self.step = step;
         for ((n, m), v) in self.names.iter().zip(&mut self.m).zip(&mut self.v) {
             let src_m = get(format!("{prefix}m.{n}"))?;
             let src_v = get(format!("{prefix}v.{n}"))?;

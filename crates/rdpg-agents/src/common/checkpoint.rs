@@ -27,6 +27,21 @@ use crate::error::{AgentError, Result};
 /// episodes in progress cannot be rebuilt (see `rdpg_envs::WalkerConfig::fresh_world`).
 pub const TRAINER_FORMAT: u32 = 3;
 
+/// The most updates (or optimiser steps) a saved counter may claim: far beyond any run, and
+/// far from where counting on would overflow.
+pub const MAX_UPDATES: u64 = 1 << 48;
+
+/// Refuses an update counter past [`MAX_UPDATES`], naming the file and the field.
+pub fn check_counter(path: &Path, field: &str, v: u64) -> Result<()> {
+    if v > MAX_UPDATES {
+        return Err(ckpt_err(
+            path,
+            format!("{field} {v} is more than any run makes ({MAX_UPDATES})"),
+        ));
+    }
+    Ok(())
+}
+
 /// A checkpoint error naming the file.
 pub fn ckpt_err(path: &Path, e: impl std::fmt::Display) -> AgentError {
     AgentError::Checkpoint(format!("{}: {e}", path.display()))

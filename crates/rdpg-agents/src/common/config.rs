@@ -100,6 +100,12 @@ impl Default for TrainConfig {
     }
 }
 
+/// Whether a setting is a finite number that also fits the networks' `f32` tensors (a value
+/// past `f32::MAX` would become infinite, or be refused by libtorch, inside an update).
+pub fn is_f32(v: f64) -> bool {
+    v.is_finite() && v.abs() <= f64::from(f32::MAX)
+}
+
 impl TrainConfig {
     /// Checks every field; the error names the offending one (`train.<field>`).
     pub fn validate(&self) -> Result<()> {
@@ -123,25 +129,25 @@ impl TrainConfig {
                 return bad("train.fall_penalty", format!("must be finite, got {p}"));
             }
         }
-        if self.action_repeat == 0 {
-            return bad("train.action_repeat", "must be at least 1".into());
-        }
+        // Sizes within what a run can do: a file asking for more is refused, not obeyed.
+        let within = |field: &'static str, v: usize, max: usize| {
+            if (1..=max).contains(&v) {
+                Ok(())
+            } else {
+                bad(field, format!("{v} is not from 1 to {max}"))
+            }
+        };
+        within("train.action_repeat", self.action_repeat, 1000)?;
         if self.total_steps == 0 {
             return bad("train.total_steps", "must be positive".into());
         }
-        if self.num_envs == 0 {
-            return bad("train.num_envs", "must be at least 1".into());
-        }
-        if self.workers == 0 {
-            return bad("train.workers", "must be at least 1".into());
-        }
-        if self.eval_episodes == 0 {
-            return bad("train.eval_episodes", "must be at least 1".into());
-        }
-        if self.test_episodes == 0 {
-            return bad("train.test_episodes", "must be at least 1".into());
-        }
-        let overlap = |a: u64, n: usize, b: u64, m: usize| a < b + m as u64 && b < a + n as u64;
+        within("train.num_envs", self.num_envs, 4096)?;
+        within("train.workers", self.workers, crate::MAX_THREADS)?;
+        within("train.eval_episodes", self.eval_episodes, 1_000_000)?;
+        within("train.test_episodes", self.test_episodes, 1_000_000)?;
+        let overlap = |a: u64, n: usize, b: u64, m: usize| {
+            a < b.saturating_add(m as u64) && b < a.saturating_add(n as u64)
+        };
         if overlap(
             self.eval_seed,
             self.eval_episodes,
@@ -153,9 +159,9 @@ impl TrainConfig {
                 format!(
                     "the test seeds {}..{} overlap the validation seeds {}..{}",
                     self.test_seed,
-                    self.test_seed + self.test_episodes as u64,
+                    self.test_seed.saturating_add(self.test_episodes as u64),
                     self.eval_seed,
-                    self.eval_seed + self.eval_episodes as u64
+                    self.eval_seed.saturating_add(self.eval_episodes as u64)
                 ),
             );
         }

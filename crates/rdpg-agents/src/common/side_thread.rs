@@ -31,6 +31,10 @@ impl SideThread {
     ///
     /// # Panics
     /// If the operating system cannot start a thread.
+    #[allow(
+        clippy::expect_used,
+        reason = "the OS refusing a thread is no input of rdpg's; the update cannot go on without it"
+    )]
     pub fn new() -> Self {
         let (tx, jobs) = channel::<(bool, i32, Job)>();
         let (done, rx) = channel::<Outcome>();
@@ -64,6 +68,10 @@ impl SideThread {
     ///
     /// # Panics
     /// If a job is already running (each `start` pairs with one `finish`).
+    #[allow(
+        clippy::expect_used,
+        reason = "the sender and the side thread live until drop"
+    )]
     pub fn start<B: Send + 'static>(
         &mut self,
         ftz: bool,
@@ -88,6 +96,10 @@ impl SideThread {
     ///
     /// # Panics
     /// If no job is running, if `B` is not the job's result type, or if the job panicked.
+    #[allow(
+        clippy::expect_used,
+        reason = "the side thread lives until drop and sends one result per job"
+    )]
     pub fn finish<B: 'static>(&mut self) -> B {
         assert!(self.running, "SideThread::finish: no job was started");
         self.running = false;

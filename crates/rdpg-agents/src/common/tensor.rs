@@ -67,6 +67,10 @@ pub fn vars_with_prefix(vs: &VarStore, prefix: &str) -> Vec<(String, Tensor)> {
 }
 
 /// A tensor's values as `f32`, flattened row-major (copied to the CPU).
+#[allow(
+    clippy::expect_used,
+    reason = "called on 1-D float tensors this crate built"
+)]
 pub fn tensor_to_vec(t: &Tensor) -> Vec<f32> {
     let t = t
         .detach()
@@ -78,6 +82,10 @@ pub fn tensor_to_vec(t: &Tensor) -> Vec<f32> {
 }
 
 /// A tensor's values as `f64`, flattened row-major (copied to the CPU).
+#[allow(
+    clippy::expect_used,
+    reason = "called on 1-D double tensors this crate built"
+)]
 pub fn tensor_to_vec64(t: &Tensor) -> Vec<f64> {
     let t = t
         .detach()

@@ -554,6 +554,13 @@ impl PpoAgent {
             agent.policy_opt.load_state("policy_opt.", &optim)?;
             agent.value_opt.load_state("value_opt.", &optim)?;
         }
+        crate::common::checkpoint::check_counter(&meta_path, "updates", meta.updates)?;
+        if !(crate::common::config::is_f32(meta.kl_coef) && meta.kl_coef >= 0.0) {
+            return Err(ckpt_err(
+                &meta_path,
+                format!("kl_coef {} is not a finite number >= 0", meta.kl_coef),
+            ));
+        }
         agent.kl_coef = meta.kl_coef;
         agent.updates = meta.updates;
         Ok(agent)

@@ -1,6 +1,7 @@
 //! Hyper-parameters of PPO with an adaptive KL penalty ([`PpoConfig`], the `[ppo]` section of
 //! an experiment file).
 
+use crate::common::config::is_f32;
 use serde::{Deserialize, Serialize};
 
 use crate::common::DeviceSpec;
@@ -80,11 +81,15 @@ impl PpoConfig {
     /// Checks every field; the error names the offending one (`ppo.<field>`).
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &'static str, reason: String| Err(AgentError::Config { field, reason });
-        let pos = |v: f64| v.is_finite() && v > 0.0;
-        if self.hidden.contains(&0) {
-            return bad("ppo.hidden", format!("{:?} has a zero width", self.hidden));
+        let pos = |v: f64| is_f32(v) && v > 0.0;
+        let max = crate::rdpg::config::MAX_WIDTH;
+        if self.hidden.len() > 64 || self.hidden.iter().any(|h| !(1..=max).contains(h)) {
+            return bad(
+                "ppo.hidden",
+                format!("{:?} is not 0 to 64 widths from 1 to {max}", self.hidden),
+            );
         }
-        if !self.log_std_init.is_finite() {
+        if !is_f32(self.log_std_init) {
             return bad(
                 "ppo.log_std_init",
                 format!("{} is not finite", self.log_std_init),
@@ -99,13 +104,14 @@ impl PpoConfig {
                 format!("{} is not in [0, 1]", self.gae_lambda),
             );
         }
-        for (field, v) in [
-            ("ppo.rollout_steps", self.rollout_steps),
-            ("ppo.epochs", self.epochs),
-            ("ppo.minibatch_size", self.minibatch_size),
+        // Sizes within what a run can do: a file asking for more is refused, not obeyed.
+        for (field, v, most) in [
+            ("ppo.rollout_steps", self.rollout_steps, 1 << 24),
+            ("ppo.epochs", self.epochs, 10_000),
+            ("ppo.minibatch_size", self.minibatch_size, 1 << 22),
         ] {
-            if v == 0 {
-                return bad(field, "must be positive".into());
+            if !(1..=most).contains(&v) {
+                return bad(field, format!("{v} is not from 1 to {most}"));
             }
         }
         for (field, v) in [
@@ -118,7 +124,7 @@ impl PpoConfig {
                 return bad(field, format!("{v} is not a positive number"));
             }
         }
-        if !(self.kl_adapt_factor.is_finite() && self.kl_adapt_factor > 1.0) {
+        if !(is_f32(self.kl_adapt_factor) && self.kl_adapt_factor > 1.0) {
             return bad(
                 "ppo.kl_adapt_factor",
                 format!("{} is not a number > 1", self.kl_adapt_factor),

@@ -602,6 +602,10 @@ impl RdpgAgent {
     /// [`RdpgAgent::actor_params`], e.g. perturbed by
     /// `rdpg_core::noise::AdaptiveParamNoise::perturb`); `None` explores with the trained
     /// actor again. The copy is neither trained nor checkpointed: perturb again after updates.
+    #[allow(
+        clippy::expect_used,
+        reason = "called only while exploring parameters are set"
+    )]
     pub fn set_exploring_params(&mut self, params: Option<&[f32]>) -> Result<()> {
         let Some(params) = params else {
             self.exploring = None;
@@ -645,7 +649,9 @@ impl RdpgAgent {
     /// Checks a batch against this agent (sizes, lengths, mask, stored state).
     pub fn check_batch(&self, b: &SequenceBatch) -> Result<()> {
         let err = |m: String| Err(AgentError::Shape(m));
-        let t = b.scan + b.opt;
+        let t = b.scan.saturating_add(b.opt);
+        // Saturating: a batch with absurd sizes does not match, rather than overflow.
+        let times = |a: usize, c: usize, d: usize| a.saturating_mul(c).saturating_mul(d);
         if b.obs_dim != self.obs_dim || b.act_dim != self.act_dim {
             return err(format!(
                 "batch obs/act dims {}/{} but agent {}/{}",
@@ -655,10 +661,10 @@ impl RdpgAgent {
         if b.n == 0 || b.opt == 0 {
             return err("batch needs n >= 1 and opt >= 1".into());
         }
-        if b.obs.len() != b.n * (t + 1) * b.obs_dim
-            || b.actions.len() != b.n * t * b.act_dim
-            || b.rewards.len() != b.n * t
-            || b.mask.len() != b.n * t
+        if b.obs.len() != times(b.n, t.saturating_add(1), b.obs_dim)
+            || b.actions.len() != times(b.n, t, b.act_dim)
+            || b.rewards.len() != times(b.n, t, 1)
+            || b.mask.len() != times(b.n, t, 1)
             || b.scan_len.len() != b.n
             || b.opt_len.len() != b.n
             || b.tail_terminated.len() != b.n
@@ -687,7 +693,9 @@ impl RdpgAgent {
         }
         if self.cfg.burn_in_from_stored_state {
             match &b.stored_state {
-                Some(s) if b.state_dim == self.state_dim() && s.len() == b.n * b.state_dim => {}
+                Some(s)
+                    if b.state_dim == self.state_dim() && s.len() == times(b.n, b.state_dim, 1) => {
+                }
                 _ => {
                     return err(format!(
                         "burn_in_from_stored_state needs stored states of size {}",

@@ -129,12 +129,12 @@ pub fn bench_update_with(
         })
         .collect();
     for b in batches.iter().take(3) {
-        agent.update(b);
+        agent.update(b)?;
     }
     agent.set_profiling(true);
     let t0 = Instant::now();
     for i in 0..iters {
-        agent.update(&batches[i % batches.len()]);
+        agent.update(&batches[i % batches.len()])?;
     }
     let secs = t0.elapsed().as_secs_f64();
     let rows = ((cfg.batch_size * cfg.opt_len) as i64, cfg.batch_size as i64);
@@ -214,7 +214,7 @@ pub fn bench_update_on_run(
     for &m in &modes {
         set_mode(agent, m)?;
         for _ in 0..3 {
-            agent.update(&batches[k % batches.len()]);
+            agent.update(&batches[k % batches.len()])?;
             k += 1;
         }
     }
@@ -224,7 +224,7 @@ pub fn bench_update_on_run(
             agent.set_profiling(true);
             let t0 = Instant::now();
             for _ in 0..iters {
-                agent.update(&batches[k % batches.len()]);
+                agent.update(&batches[k % batches.len()])?;
                 k += 1;
             }
             total[i].0 += t0.elapsed().as_secs_f64();
@@ -243,25 +243,4 @@ pub fn bench_update_on_run(
         })
         .collect();
     Ok((updates_before, out))
-}
-
-/// Updates per second at BipedalWalker sizes (obs 24, act 4, the paper's networks, CPU, 2
-/// threads) with scan length `scan`, `batch` windows and optimisation length `opt`, over
-/// `iters` timed updates on full windows.
-///
-/// # Panics
-/// If the agent cannot be built (invalid sizes).
-pub fn bench_update(scan: usize, batch: usize, opt: usize, iters: usize) -> f64 {
-    let cfg = RdpgConfig {
-        scan_len: scan,
-        batch_size: batch,
-        opt_len: opt,
-        update_len: opt,
-        device: crate::common::DeviceSpec::Cpu,
-        num_threads: Some(2),
-        ..Default::default()
-    };
-    bench_update_with(&cfg, 24, 4, 0.0, iters)
-        .expect("bench agent")
-        .updates_per_sec
 }

@@ -114,6 +114,7 @@ impl RdpgAgent {
                 ),
             ));
         }
+        crate::common::checkpoint::check_counter(&meta_path, "updates", meta.updates)?;
         let mut cfg = meta.config;
         if let Some(d) = device {
             cfg.device = d;

@@ -6,6 +6,7 @@
 //! networks, critic L2 1e-5, gamma 0.99, batch 64, optimisation/update length 8/8, scan 24 (the
 //! paper's Table I run used 120), lambda 1 and no target networks (`tau = 0`).
 
+use crate::common::config::is_f32;
 use serde::{Deserialize, Serialize};
 
 use crate::common::tensor::DeviceSpec;
@@ -286,6 +287,12 @@ fn bad(field: &'static str, reason: impl Into<String>) -> AgentError {
     }
 }
 
+/// The widest layer a config may ask for (a file asking for more is refused, not built).
+pub const MAX_WIDTH: usize = 1 << 14;
+
+/// The most window steps (`batch_size × (scan_len + opt_len + 1)`) one batch may hold.
+pub const MAX_BATCH_STEPS: usize = 1 << 22;
+
 fn positive(field: &'static str, v: usize) -> Result<()> {
     if v == 0 {
         return Err(bad(field, "must be at least 1"));
@@ -293,8 +300,16 @@ fn positive(field: &'static str, v: usize) -> Result<()> {
     Ok(())
 }
 
+/// A layer width: 1 to [`MAX_WIDTH`].
+fn width(field: &'static str, v: usize) -> Result<()> {
+    if !(1..=MAX_WIDTH).contains(&v) {
+        return Err(bad(field, format!("{v} is not from 1 to {MAX_WIDTH}")));
+    }
+    Ok(())
+}
+
 fn finite_pos(field: &'static str, v: f64) -> Result<()> {
-    if !(v.is_finite() && v > 0.0) {
+    if !(is_f32(v) && v > 0.0) {
         return Err(bad(field, format!("must be finite and > 0, got {v}")));
     }
     Ok(())
@@ -314,11 +329,11 @@ impl RdpgConfig {
     pub fn validate(&self) -> Result<()> {
         match &self.trunk {
             Trunk::Lidar => {
-                positive("lidar_dim", self.lidar_dim)?;
-                positive("lidar_channels", self.lidar_channels)?;
-                positive("lidar_kernel", self.lidar_kernel)?;
-                positive("lidar_fc", self.lidar_fc)?;
-                positive("body_fc", self.body_fc)?;
+                width("lidar_dim", self.lidar_dim)?;
+                width("lidar_channels", self.lidar_channels)?;
+                width("lidar_kernel", self.lidar_kernel)?;
+                width("lidar_fc", self.lidar_fc)?;
+                width("body_fc", self.body_fc)?;
                 if self.lidar_kernel > self.lidar_dim {
                     return Err(bad("lidar_kernel", "must not exceed lidar_dim"));
                 }
@@ -333,19 +348,28 @@ impl RdpgConfig {
                 if hidden.is_empty() {
                     return Err(bad("trunk", "mlp.hidden must list at least one layer"));
                 }
-                if hidden.contains(&0) {
-                    return Err(bad("trunk", "mlp.hidden widths must be >= 1"));
+                if hidden.len() > 64 || hidden.iter().any(|h| !(1..=MAX_WIDTH).contains(h)) {
+                    return Err(bad(
+                        "trunk",
+                        format!("mlp.hidden must list 1 to 64 widths from 1 to {MAX_WIDTH}"),
+                    ));
                 }
             }
         }
-        if !self.lstm_forget_bias.is_finite() {
+        if !is_f32(self.lstm_forget_bias) {
             return Err(bad("lstm_forget_bias", "must be finite"));
         }
         if !self.recurrent && self.lstm_forget_bias != 0.0 {
             return Err(bad("lstm_forget_bias", "needs a recurrent agent (an LSTM)"));
         }
-        positive("actor_hidden", self.actor_hidden)?;
-        positive("critic_hidden", self.critic_hidden)?;
+        width("actor_hidden", self.actor_hidden)?;
+        width("critic_hidden", self.critic_hidden)?;
+        if self.critic_action_fc > MAX_WIDTH {
+            return Err(bad(
+                "critic_action_fc",
+                format!("must be at most {MAX_WIDTH}"),
+            ));
+        }
         if self.critic_action_fc == 0 && !matches!(self.trunk, Trunk::Mlp { .. }) {
             return Err(bad(
                 "critic_action_fc",
@@ -353,7 +377,7 @@ impl RdpgConfig {
                  observations only, so give it an action branch (e.g. 64)",
             ));
         }
-        if !(self.gamma.is_finite() && (0.0..=1.0).contains(&self.gamma)) {
+        if !(is_f32(self.gamma) && (0.0..=1.0).contains(&self.gamma)) {
             return Err(bad(
                 "gamma",
                 format!("must be in [0, 1], got {}", self.gamma),
@@ -361,7 +385,7 @@ impl RdpgConfig {
         }
         finite_pos("lr_actor", self.lr_actor)?;
         finite_pos("lr_critic", self.lr_critic)?;
-        if !(self.critic_l2.is_finite() && self.critic_l2 >= 0.0) {
+        if !(is_f32(self.critic_l2) && self.critic_l2 >= 0.0) {
             return Err(bad("critic_l2", "must be finite and >= 0"));
         }
         if !(0.0..1.0).contains(&self.adam_beta1) {
@@ -375,6 +399,25 @@ impl RdpgConfig {
         positive("policy_delay", self.policy_delay)?;
         positive("opt_len", self.opt_len)?;
         positive("update_len", self.update_len)?;
+        let steps = self
+            .scan_len
+            .saturating_add(self.opt_len)
+            .saturating_add(1)
+            .saturating_mul(self.batch_size);
+        if steps > MAX_BATCH_STEPS {
+            return Err(bad(
+                "batch_size",
+                format!(
+                    "{} windows of scan_len + opt_len + 1 = {} steps hold more than \
+                     {MAX_BATCH_STEPS} steps",
+                    self.batch_size,
+                    self.scan_len.saturating_add(self.opt_len).saturating_add(1)
+                ),
+            ));
+        }
+        if self.policy_delay > 1_000_000 {
+            return Err(bad("policy_delay", "must be at most 1000000"));
+        }
         if self.update_len > self.opt_len {
             return Err(bad(
                 "update_len",
@@ -412,23 +455,23 @@ impl RdpgConfig {
                 );
             }
         }
-        if !(self.lambda.is_finite() && self.lambda >= 0.0) {
+        if !(is_f32(self.lambda) && self.lambda >= 0.0) {
             return Err(bad(
                 "lambda",
                 format!("must be finite and >= 0, got {}", self.lambda),
             ));
         }
-        if !(self.tau.is_finite() && (0.0..=1.0).contains(&self.tau)) {
+        if !(is_f32(self.tau) && (0.0..=1.0).contains(&self.tau)) {
             return Err(bad("tau", format!("must be in [0, 1], got {}", self.tau)));
         }
         if let Some(c) = self.grad_clip {
             finite_pos("grad_clip", c)?;
         }
         if let Some(n) = self.target_noise {
-            if !(n.std.is_finite() && n.std >= 0.0) {
+            if !(is_f32(n.std) && n.std >= 0.0) {
                 return Err(bad("target_noise", "std must be finite and >= 0"));
             }
-            if !(n.clip.is_finite() && n.clip >= 0.0) {
+            if !(is_f32(n.clip) && n.clip >= 0.0) {
                 return Err(bad("target_noise", "clip must be finite and >= 0"));
             }
         }
@@ -459,17 +502,27 @@ impl RdpgConfig {
                      observation and action to the next",
                 ));
             }
-            if !(f.weight.is_finite() && f.weight >= 0.0) {
+            if !(is_f32(f.weight) && f.weight >= 0.0) {
                 return Err(bad("fork", "weight must be finite and >= 0"));
             }
-            if !(f.threshold.is_finite() && f.threshold > 0.0) {
+            if !(is_f32(f.threshold) && f.threshold > 0.0) {
                 return Err(bad("fork", "threshold must be finite and > 0"));
             }
-            if f.model_hidden.is_empty() || f.model_hidden.contains(&0) {
-                return Err(bad("fork", "model_hidden must list widths >= 1"));
+            if f.model_hidden.is_empty()
+                || f.model_hidden.iter().any(|h| !(1..=MAX_WIDTH).contains(h))
+            {
+                return Err(bad(
+                    "fork",
+                    format!("model_hidden must list widths from 1 to {MAX_WIDTH}"),
+                ));
             }
-            if f.reward_hidden.is_empty() || f.reward_hidden.contains(&0) {
-                return Err(bad("fork", "reward_hidden must list widths >= 1"));
+            if f.reward_hidden.is_empty()
+                || f.reward_hidden.iter().any(|h| !(1..=MAX_WIDTH).contains(h))
+            {
+                return Err(bad(
+                    "fork",
+                    format!("reward_hidden must list widths from 1 to {MAX_WIDTH}"),
+                ));
             }
             finite_pos("fork", f.lr)?;
         }

@@ -70,6 +70,10 @@ impl TrunkNet {
     }
 
     /// Builds the trunk for observations of size `obs_dim`.
+    #[allow(
+        clippy::expect_used,
+        reason = "the lidar convolution is built with a bias"
+    )]
     pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64) -> Self {
         match &cfg.trunk {
             Trunk::Lidar => {

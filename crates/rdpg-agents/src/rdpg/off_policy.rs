@@ -3,6 +3,7 @@
 //! injection. The run itself (environment, budget, evaluation, seeds) is the shared
 //! [`TrainConfig`](crate::TrainConfig).
 
+use crate::common::config::is_f32;
 use rdpg_core::noise::ParamNoiseConfig;
 use serde::{Deserialize, Serialize};
 
@@ -87,6 +88,10 @@ impl Default for ParamNoiseSpec {
     }
 }
 
+/// The most gradient updates per environment step a run may ask for (REDQ-style agents use
+/// 20; more is a typo or a file that would keep a run busy for ever).
+pub const MAX_UPDATES_PER_STEP: f64 = 1000.0;
+
 /// The off-policy loop's settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -122,10 +127,13 @@ impl OffPolicyConfig {
     /// Checks every field; the error names the offending one (`off_policy.<field>`).
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &'static str, reason: String| Err(AgentError::Config { field, reason });
-        if !(self.updates_per_step.is_finite() && self.updates_per_step >= 0.0) {
+        if !(0.0..=MAX_UPDATES_PER_STEP).contains(&self.updates_per_step) {
             return bad(
                 "off_policy.updates_per_step",
-                format!("{} is not a non-negative number", self.updates_per_step),
+                format!(
+                    "{} is not a number from 0 to {MAX_UPDATES_PER_STEP}",
+                    self.updates_per_step
+                ),
             );
         }
         if self.replay_capacity == 0 {
@@ -135,11 +143,11 @@ impl OffPolicyConfig {
             inj.validate()?;
         }
         if let Some(p) = &self.param_noise {
-            let ok = p.initial_stddev.is_finite()
+            let ok = is_f32(p.initial_stddev)
                 && p.initial_stddev > 0.0
-                && p.desired_action_stddev.is_finite()
+                && is_f32(p.desired_action_stddev)
                 && p.desired_action_stddev > 0.0
-                && p.adoption_coefficient.is_finite()
+                && is_f32(p.adoption_coefficient)
                 && p.adoption_coefficient > 1.0
                 && p.adapt_every_updates > 0
                 && p.perturb != PerturbSchedule::Steps(0);
@@ -156,16 +164,16 @@ impl OffPolicyConfig {
         }
         match self.exploration {
             ExplorationConfig::Ou { theta, sigma }
-                if theta.is_nan() || sigma.is_nan() || theta <= 0.0 || sigma < 0.0 =>
+                if !(is_f32(theta) && is_f32(sigma) && theta > 0.0 && sigma >= 0.0) =>
             {
                 bad(
                     "off_policy.exploration",
-                    format!("OU needs theta > 0 and sigma >= 0 (got {theta}, {sigma})"),
+                    format!("OU needs finite theta > 0 and sigma >= 0 (got {theta}, {sigma})"),
                 )
             }
-            ExplorationConfig::Gaussian { sigma } if sigma.is_nan() || sigma < 0.0 => bad(
+            ExplorationConfig::Gaussian { sigma } if !(is_f32(sigma) && sigma >= 0.0) => bad(
                 "off_policy.exploration",
-                format!("Gaussian needs sigma >= 0 (got {sigma})"),
+                format!("Gaussian needs a finite sigma >= 0 (got {sigma})"),
             ),
             _ => Ok(()),
         }

@@ -638,7 +638,7 @@ fn same_seed_same_weights_after_updates() {
             for k in 0..4 {
                 stats.push(UpdateStats {
                     seconds: 0.0, // wall time: the one field that may differ
-                    ..agent.update(&batch(&cfg, 6, 0.4, 100 + k))
+                    ..agent.update(&batch(&cfg, 6, 0.4, 100 + k)).unwrap()
                 });
             }
             (agent.weights(), stats)
@@ -677,7 +677,7 @@ fn updates_change_weights_and_stats_are_finite() {
         };
         let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 1).unwrap();
         let w0 = agent.weights();
-        let s = agent.update(&batch(&cfg, 6, 0.5, 3));
+        let s = agent.update(&batch(&cfg, 6, 0.5, 3)).unwrap();
         assert!(
             s.critic_loss.is_finite()
                 && s.actor_loss.is_some_and(f64::is_finite)
@@ -702,7 +702,7 @@ fn scan_methods_give_the_same_update() {
             ..tiny()
         };
         let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 5, Kind::Double).unwrap();
-        let s = agent.update(&batch(&cfg, 8, 0.6, 77));
+        let s = agent.update(&batch(&cfg, 8, 0.6, 77)).unwrap();
         (agent.weights(), s)
     };
     let (wa, sa) = run(ScanMethod::Grouped);
@@ -728,7 +728,7 @@ fn save_load_gives_identical_outputs_and_next_update() {
     ] {
         let mut a = RdpgAgent::new(cfg.clone(), OBS, ACT, 7).unwrap();
         for k in 0..3 {
-            a.update(&batch(&cfg, 6, 0.3, k));
+            a.update(&batch(&cfg, 6, 0.3, k)).unwrap();
         }
         let dir = tmp_dir(tag);
         a.save(&dir).unwrap();
@@ -754,7 +754,10 @@ fn save_load_gives_identical_outputs_and_next_update() {
         // restored).
         let nb = batch(&cfg, 6, 0.3, 99);
         let untimed = |s: UpdateStats| UpdateStats { seconds: 0.0, ..s };
-        assert_eq!(untimed(a.update(&nb)), untimed(b.update(&nb)));
+        assert_eq!(
+            untimed(a.update(&nb).unwrap()),
+            untimed(b.update(&nb).unwrap())
+        );
         assert_eq!(a.weights(), b.weights());
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -879,10 +882,10 @@ fn critic_regresses_rewards_when_gamma_is_zero() {
         };
         let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 6).unwrap();
         let b = batch(&cfg, 8, 0.3, 5);
-        let first = agent.update(&b).critic_loss;
+        let first = agent.update(&b).unwrap().critic_loss;
         let mut last = first;
         for _ in 0..150 {
-            last = agent.update(&b).critic_loss;
+            last = agent.update(&b).unwrap().critic_loss;
         }
         assert!(last < 0.3 * first, "critic loss {first} -> {last}");
     }
@@ -891,7 +894,7 @@ fn critic_regresses_rewards_when_gamma_is_zero() {
 #[test]
 fn check_batch_rejects_inconsistent_batches() {
     let cfg = tiny();
-    let agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 0).unwrap();
+    let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 0).unwrap();
     let good = batch(&cfg, 4, 0.5, 1);
     agent.check_batch(&good).unwrap();
     let mut b = good.clone();
@@ -904,6 +907,11 @@ fn check_batch_rejects_inconsistent_batches() {
     let t = b.scan + b.opt;
     b.mask[t - 1] = 1.0 - b.mask[t - 1];
     assert!(agent.check_batch(&b).is_err());
+    // `update` refuses it the same way, and changes nothing.
+    let before = agent.actor_params();
+    let e = agent.update(&b).unwrap_err().to_string();
+    assert!(e.contains("mask"), "{e}");
+    assert_eq!((agent.updates(), agent.actor_params()), (0, before));
 }
 
 #[test]
@@ -966,7 +974,7 @@ fn policy_delay_moves_actor_and_targets_every_second_update() {
     };
     let mut prev = agent.weights();
     for k in 1..=4u64 {
-        let s = agent.update(&batch(&cfg, 6, 0.5, 10 + k));
+        let s = agent.update(&batch(&cfg, 6, 0.5, 10 + k)).unwrap();
         let w = agent.weights();
         let actor_turn = k % 2 == 0;
         assert_eq!(s.actor_loss.is_some(), actor_turn, "update {k}: {s:?}");
@@ -1203,9 +1211,9 @@ fn soft_update_moves_targets_by_tau() {
     };
     let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 5, Kind::Double).unwrap();
     // One update so that online and target differ, then check the next one.
-    agent.update(&batch(&cfg, 6, 0.5, 1));
+    agent.update(&batch(&cfg, 6, 0.5, 1)).unwrap();
     let before = agent.weights();
-    agent.update(&batch(&cfg, 6, 0.5, 2));
+    agent.update(&batch(&cfg, 6, 0.5, 2)).unwrap();
     let after = agent.weights();
     let get = |w: &[(String, Vec<f64>)], n: &str| w.iter().find(|(m, _)| m == n).unwrap().1.clone();
     let mut checked = 0;
@@ -1384,7 +1392,7 @@ fn actor_sees_the_critic_in_algorithm_1_order() {
         let b = batch(&cfg, 6, 0.5, 77);
         let mut a = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 9, Kind::Double).unwrap();
         let mut m = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 9, Kind::Double).unwrap();
-        let reported = a.update(&b).actor_loss.unwrap();
+        let reported = a.update(&b).unwrap().actor_loss.unwrap();
         // By hand on the twin agent.
         let p = m.prepare(&b);
         let sc = m.scan_all(&p);
@@ -1545,7 +1553,7 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
                         .collect(),
                 );
             }
-            let (s1, s2) = (one.update(&b), two.update(&b));
+            let (s1, s2) = (one.update(&b).unwrap(), two.update(&b).unwrap());
             assert_eq!(s1.critic_loss, s2.critic_loss, "update {k}: critic loss");
             assert_eq!(s1.actor_loss, s2.actor_loss, "update {k}: actor loss");
             assert_eq!(s1.q_mean, s2.q_mean, "update {k}: q mean");
@@ -1682,7 +1690,7 @@ fn fork_term_moves_the_actor_only_when_gated_in() {
         // Two updates: the actor's first turn is the second (later critic updates would
         // see the moved target actor).
         let stats: Vec<UpdateStats> = (0..2)
-            .map(|k| agent.update(&batch(&cfg, 6, 0.5, 40 + k)))
+            .map(|k| agent.update(&batch(&cfg, 6, 0.5, 40 + k)).unwrap())
             .collect();
         (agent.weights(), stats)
     };
@@ -1748,13 +1756,14 @@ fn fork_models_fit_a_batch_and_switch_the_term_on() {
     assert!(steps.is_some(), "the dynamics loss never fell below 0.02");
     assert!(reward_loss(f) < 0.1 * r0, "{} vs {r0}", reward_loss(f));
 
-    let s1 = agent.update(&b);
-    let s2 = agent.update(&b);
+    let s1 = agent.update(&b).unwrap();
+    let s2 = agent.update(&b).unwrap();
     assert!(s1.model_loss.is_some_and(|x| x < 0.02), "{s1:?}");
     assert_eq!((s1.fork_term, s2.fork_term), (None, Some(true)));
     let plain = RdpgAgent::new(tiny(), OBS, ACT, 5)
         .unwrap()
-        .update(&batch(&tiny(), 4, 0.5, 1));
+        .update(&batch(&tiny(), 4, 0.5, 1))
+        .unwrap();
     assert_eq!((plain.model_loss, plain.fork_term), (None, None));
 }
 
@@ -1986,7 +1995,7 @@ fn window_tail_reencodes_the_steps_before_the_tail_from_zero() {
     }
     // And the whole update runs, with finite statistics.
     let mut agent = agent;
-    let stats = agent.update(&b);
+    let stats = agent.update(&b).unwrap();
     assert!(stats.critic_loss.is_finite() && stats.q_mean.is_finite());
 }
 

@@ -208,6 +208,8 @@ impl OffPolicyTrainer {
                 "the replay's observation/action/state sizes do not match the agent",
             ));
         }
+        check_loop_state(&st, &off, n, agent.act_dim(), agent.obs_dim(), stored)
+            .map_err(|e| ckpt_err(&dir.join("loop.bin"), e))?;
         if st.param_noise.is_some() != off.param_noise.is_some() {
             return Err(AgentError::Checkpoint(
                 "parameter noise state does not match the config".into(),
@@ -349,7 +351,7 @@ impl OffPolicyTrainer {
             let Some(batch) = sampled else {
                 break;
             };
-            let stats = self.agent.update(&batch);
+            let stats = self.agent.update(&batch)?;
             obs_cb.on_update(steps, &stats);
             self.adapt_param_noise_if_due()?;
         }
@@ -548,6 +550,59 @@ pub fn adapt_param_noise(
     let distance = action_distance(&perturbed, &clean);
     noise.adapt(distance);
     Ok(distance)
+}
+
+/// What a loaded `loop.bin` must agree with: the update debt is what one vector step leaves,
+/// each env's noise is the configured process on the action size (an OU state finite), each
+/// open episode's buffers have whole steps of the agent's sizes.
+fn check_loop_state(
+    st: &LoopState,
+    off: &OffPolicyConfig,
+    n: usize,
+    act_dim: usize,
+    obs_dim: usize,
+    state_dim: usize,
+) -> std::result::Result<(), String> {
+    let most = off.updates_per_step * n as f64 + 1.0;
+    if !(0.0..=most).contains(&st.update_debt) {
+        return Err(format!(
+            "update debt {} is not from 0 to {most}",
+            st.update_debt
+        ));
+    }
+    for (i, noise) in st.noise.iter().enumerate() {
+        let fresh = make_noise(&off.exploration, act_dim);
+        let same = match (noise, &fresh) {
+            (ActionNoise::Ou(a), ActionNoise::Ou(b)) => {
+                (a.theta, a.sigma, a.mu, a.dt, a.state.len())
+                    == (b.theta, b.sigma, b.mu, b.dt, b.state.len())
+                    && a.state.iter().all(|x| x.is_finite())
+            }
+            (a, b) => a == b,
+        };
+        if !same {
+            return Err(format!(
+                "env {i}'s exploration noise does not match off_policy.exploration on {act_dim} \
+                 action components"
+            ));
+        }
+    }
+    for (i, b) in st.buffers.iter().enumerate() {
+        let k = b.rewards.len();
+        let fits = b.obs.len() == (k + 1) * obs_dim
+            && b.actions.len() == k * act_dim
+            && b.states.len() == k * state_dim;
+        if !fits {
+            return Err(format!(
+                "env {i}'s open episode holds {} observation, {} action and {} state values \
+                 for {k} steps",
+                b.obs.len(),
+                b.actions.len(),
+                b.states.len()
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn make_noise(cfg: &ExplorationConfig, dim: usize) -> ActionNoise {

@@ -33,6 +33,10 @@ use crate::common::UpdateStats;
 
 impl RdpgAgent {
     /// [`RdpgAgent::update`] with `parallel_twins` (checked batch, denormal mode set).
+    #[allow(
+        clippy::expect_used,
+        reason = "parallel twins are validated to need target networks, scanned with them"
+    )]
     pub(super) fn update_parallel(&mut self, batch: &SequenceBatch) -> UpdateStats {
         let started = Instant::now();
         let mut clock = Clock::new(self.profile.is_some());
@@ -130,6 +134,10 @@ impl RdpgAgent {
     /// Step 1 with `parallel_twins`: critic 0, target critic 0 and (when the update reads it)
     /// the behaviour actor here, critic 1, its target and the target actor on a second thread;
     /// without the behaviour actor, the target actor here too (when there is a scan to run).
+    #[allow(
+        clippy::expect_used,
+        reason = "parallel twins are validated to need target networks, scanned with them"
+    )]
     fn scan_all_parallel(&self, p: &Prepared, side: &mut SideThread) -> Scanned {
         let with_actor = self.scans_actor();
         if p.s == 0 || !self.actor.core.is_recurrent() {
@@ -192,6 +200,10 @@ impl RdpgAgent {
     /// no parameter). Zeroes the critics' gradients and back-propagates; returns critic 0's
     /// `Q(o_i, a_i | h_{i-1})` on the trained steps (`[N, u]`, detached), the summed TD loss
     /// and the actor's states (on the actor's turn).
+    #[allow(
+        clippy::expect_used,
+        reason = "parallel twins are validated to need target networks, scanned with them"
+    )]
     fn twin_critic_gradients(
         &mut self,
         p: &Prepared,

@@ -70,12 +70,17 @@ use super::nets::{Actor, Critic};
 use super::prepared::Prepared;
 use super::profile::Clock;
 use crate::common::UpdateStats;
+use crate::Result;
 
 impl Scanned {
     /// The behaviour actor's scanned state.
     ///
     /// # Panics
     /// If the update did not scan it (see [`Scanned::actor`]).
+    #[allow(
+        clippy::expect_used,
+        reason = "the update scans the behaviour actor wherever it reads it (scans_actor)"
+    )]
     pub(super) fn actor(&self) -> &RecState {
         self.actor
             .as_ref()
@@ -86,17 +91,15 @@ impl Scanned {
 impl RdpgAgent {
     /// One RDPG update (Algorithm 1, `Update`) on `batch`. See the module docs for the steps.
     ///
-    /// # Panics
-    /// If the batch does not fit the agent ([`RdpgAgent::check_batch`] fails).
-    pub fn update(&mut self, batch: &SequenceBatch) -> UpdateStats {
-        if let Err(e) = self.check_batch(batch) {
-            panic!("RdpgAgent::update: {e}");
-        }
+    /// # Errors
+    /// If the batch does not fit the agent ([`RdpgAgent::check_batch`]); nothing has changed.
+    pub fn update(&mut self, batch: &SequenceBatch) -> Result<UpdateStats> {
+        self.check_batch(batch)?;
         if self.cfg.flush_denormal {
             crate::common::tensor::set_flush_denormal(true);
         }
         if self.cfg.parallel_twins {
-            return self.update_parallel(batch); // the same update on two threads (twins.rs)
+            return Ok(self.update_parallel(batch)); // the same update on two threads (twins.rs)
         }
         let started = Instant::now();
         let mut clock = Clock::new(self.profile.is_some());
@@ -148,12 +151,13 @@ impl RdpgAgent {
         stats.seconds = started.elapsed().as_secs_f64();
         clock.lap(|t| &mut t.other);
         clock.finish(&mut self.profile);
-        stats
+        Ok(stats)
     }
 
     /// Step 2's gradient: the critics' TD loss (summed over twins) back-propagated into
     /// zeroed gradients. Returns critic 0's `Q(o_i, a_i | h_{i-1})` on the trained steps
     /// (detached), the loss and the actor's states along the window (per-step actor gradient).
+    #[allow(clippy::expect_used, reason = "an agent has one or two critics")]
     pub(super) fn critic_gradients(
         &mut self,
         p: &Prepared,

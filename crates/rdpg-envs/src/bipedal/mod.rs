@@ -499,11 +499,11 @@ impl Env for BipedalWalker {
         &self.act_space
     }
 
-    fn reset(&mut self, seed: Option<u64>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
         // Physics in IEEE mode whatever the thread (learners flush subnormals).
         rdpg_core::fpmode::with_ieee_denormals(|| {
-            if let Some(s) = seed {
-                self.rng = Some(NpRng::from_seed(s));
+            if rng.is_some() {
+                self.rng = rng;
             }
             if self.config.fresh_world {
                 // Dropping the old world frees every body, joint and contact it holds.

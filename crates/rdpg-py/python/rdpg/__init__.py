@@ -57,6 +57,17 @@ def _spaces(low: list[float], high: list[float]) -> spaces.Box:
     return spaces.Box(np.array(low, np.float32), np.array(high, np.float32), dtype=np.float32)
 
 
+def _seed_words(seed: int) -> list[int]:
+    """A seed of any size as its little-endian 32-bit words, as numpy's ``SeedSequence`` reads
+    an int (Gymnasium seeds with any non-negative int)."""
+    seed, words = int(seed), []
+    while True:
+        words.append(seed & 0xFFFFFFFF)
+        seed >>= 32
+        if not seed:
+            return words
+
+
 def _count(name: str, value: Any, least: int = 0) -> int:
     """``value`` as an int of at least ``least``, or a ValueError/TypeError naming ``name``
     (rather than the extension's bare OverflowError)."""
@@ -126,7 +137,7 @@ class RdpgEnv(gym.Env):
         if seed is not None:
             _count("seed", seed)
         super().reset(seed=seed)
-        obs = self._env.reset(seed)
+        obs = self._env.reset(None if seed is None else _seed_words(seed))
         return _f32(obs, self.observation_space.shape), {}
 
     def step(self, action):
@@ -206,7 +217,8 @@ class RdpgVectorEnv(VectorEnv):
         if seed is not None:
             _count("seed", seed)
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
-        return _f32(self._env.reset(None if seed is None else int(seed)), self._obs_shape), {}
+        words = None if seed is None else _seed_words(seed)
+        return _f32(self._env.reset(words), self._obs_shape), {}
 
     def step(self, actions):
         obs, rew, term, trunc = self._env.step(_action_bytes(actions, self._act_shape))
