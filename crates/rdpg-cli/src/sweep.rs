@@ -8,7 +8,8 @@
 //! its estimated core-hours), writes `runs/sweeps/<name>/plan.json` and hands the run to
 //! `python -m rdpg.sweep` (Ray Tune: `crates/rdpg-py/python/rdpg/sweep.py`), which starts,
 //! resumes or skips each trial. `--collect` writes each finished trial's small result file
-//! under the sweep's `results` folder (what `rdpg table` reads and what gets committed).
+//! under the sweep's `results` folder (what `rdpg table` reads and what gets committed), and
+//! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`Ledger`]).
 //!
 //! ```toml
 //! name = "table1-cpu"                      # default: the file's stem
@@ -36,7 +37,7 @@ use rdpg_agents::Algo;
 use serde::{Deserialize, Serialize};
 
 use crate::experiment::Experiment;
-use crate::rundir::{write_json, Metric, RunDir, Summary, TestSummary};
+use crate::rundir::{read_json, write_json, Metric, RunDir, Summary, TestSummary};
 
 /// Arguments of `rdpg sweep`.
 #[derive(Debug, Args)]
@@ -47,8 +48,9 @@ pub struct SweepArgs {
     /// on this machine), and start nothing.
     #[arg(long, conflicts_with = "collect")]
     plan: bool,
-    /// Write the result file of every finished trial (under the sweep's `results` folder) and
-    /// start nothing.
+    /// Write the result file of every finished trial and the sweep's ledger (every trial's
+    /// status, steps, binary commits and restarts) under the sweep's `results` folder, and start
+    /// nothing.
     #[arg(long)]
     collect: bool,
     /// CPUs the local Ray may use (default: all cores); at most `cpus / threads` trials run at
@@ -405,6 +407,8 @@ pub fn run(a: &SweepArgs) -> Result<()> {
         for line in collect(&sweep)? {
             println!("{line}");
         }
+        let path = write_ledger(&sweep)?;
+        println!("{}", path.display());
         return Ok(());
     }
     if a.cpus == Some(0) {
@@ -640,6 +644,138 @@ fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         out.push(path.display().to_string());
     }
     Ok(out)
+}
+
+/// One trial's line in the ledger.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LedgerRow {
+    /// `<row>-s<seed>`.
+    pub trial: String,
+    /// Row name.
+    pub row: String,
+    /// Seed.
+    pub seed: u64,
+    /// `finished`, `in progress` (checkpointed, not at its budget) or `not started`.
+    pub status: String,
+    /// Agent steps of its last checkpoint (its result's, once finished).
+    pub steps: u64,
+    /// Its budget.
+    pub budget: u64,
+    /// The binary commits that trained it (start and resumes), in order, without repeats.
+    pub commits: Vec<String>,
+    /// Times it started again from zero because its run directory was lost (its steps went
+    /// back): its steps are those of the latest start, never spliced onto a lost one.
+    pub restarts: u32,
+}
+
+/// The committed record of a sweep's trials: what ran, how far, on which binary, and which
+/// trials restarted after a lost machine (`results/<sweep>/ledger.json`, with a Markdown
+/// view `ledger.md`). Each `--collect` rebuilds it from the run directories and the previous
+/// ledger.
+#[derive(Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ledger {
+    /// Sweep name.
+    pub sweep: String,
+    /// One row per trial, in the sweep's order.
+    pub trials: Vec<LedgerRow>,
+}
+
+fn unique_commits(versions: &[serde_json::Value]) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for v in versions {
+        if let Some(c) = v["commit"].as_str() {
+            let c: String = c.chars().take(12).collect();
+            if out.last() != Some(&c) {
+                out.push(c);
+            }
+        }
+    }
+    out
+}
+
+/// The ledger now, from the trials' result files and run directories and the ledger before
+/// (its restart counts, and steps to compare with).
+fn ledger(sweep: &Sweep, before: &Ledger) -> Result<Ledger> {
+    let mut trials = Vec::new();
+    for t in &sweep.trials {
+        let old = before.trials.iter().find(|r| r.trial == t.id);
+        let result = sweep.results.join(format!("{}.json", t.id));
+        let run = RunDir::new(&t.run_dir);
+        let (status, steps, commits) = if result.exists() {
+            let r: TrialResult = read_json(&result)?;
+            ("finished", r.steps, unique_commits(&r.versions))
+        } else if let Ok(summary) = run.read_summary() {
+            let versions = run_record(&run)?.versions;
+            ("in progress", summary.steps, unique_commits(&versions))
+        } else {
+            ("not started", 0, Vec::new())
+        };
+        let went_back = old.is_some_and(|o| steps < o.steps);
+        trials.push(LedgerRow {
+            trial: t.id.clone(),
+            row: t.row.clone(),
+            seed: t.seed,
+            status: status.into(),
+            steps,
+            budget: t.steps,
+            commits,
+            restarts: old.map_or(0, |o| o.restarts) + u32::from(went_back),
+        });
+    }
+    Ok(Ledger {
+        sweep: sweep.file.name.clone(),
+        trials,
+    })
+}
+
+/// The ledger as a Markdown table.
+fn ledger_markdown(l: &Ledger) -> String {
+    let mut md = format!(
+        "# Ledger of sweep `{}`\n\nWritten by `rdpg sweep <file> --collect` from the run \
+         directories; a restarted trial started again from zero after its run directory was \
+         lost.\n\n| trial | row | seed | status | steps | budget | commits | restarts |\n\
+         |---|---|---:|---|---:|---:|---|---:|\n",
+        l.sweep
+    );
+    for r in &l.trials {
+        md += &format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            r.trial,
+            r.row,
+            r.seed,
+            r.status,
+            r.steps,
+            r.budget,
+            r.commits.join(", "),
+            r.restarts
+        );
+    }
+    md
+}
+
+/// Rebuilds and writes the sweep's ledger (JSON and Markdown); returns the JSON's path.
+fn write_ledger(sweep: &Sweep) -> Result<PathBuf> {
+    let path = sweep.results.join("ledger.json");
+    let before: Ledger = if path.exists() {
+        read_json(&path)?
+    } else {
+        Ledger::default()
+    };
+    let l = ledger(sweep, &before)?;
+    std::fs::create_dir_all(&sweep.results)
+        .with_context(|| format!("creating {}", sweep.results.display()))?;
+    for (p, text) in [
+        (path.clone(), serde_json::to_string_pretty(&l)? + "\n"),
+        (sweep.results.join("ledger.md"), ledger_markdown(&l)),
+    ] {
+        let partial = p.with_extension("partial");
+        std::fs::write(&partial, text).with_context(|| format!("writing {}", partial.display()))?;
+        std::fs::rename(&partial, &p)
+            .with_context(|| format!("renaming {} to {}", partial.display(), p.display()))?;
+    }
+    Ok(path)
 }
 
 #[cfg(test)]

@@ -69,7 +69,11 @@ fn read_inputs(inputs: &[PathBuf]) -> Result<Vec<TrialResult>> {
             let mut files: Vec<PathBuf> = std::fs::read_dir(p)
                 .with_context(|| format!("reading {}", p.display()))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| f.extension().is_some_and(|e| e == "json"))
+                // The sweep's ledger lies beside its result files.
+                .filter(|f| {
+                    f.extension().is_some_and(|e| e == "json")
+                        && f.file_name().is_some_and(|n| n != "ledger.json")
+                })
                 .collect();
             files.sort();
             if files.is_empty() {

@@ -1527,6 +1527,44 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         .map(|l| l.split(',').next().unwrap())
         .collect();
     assert_eq!(rows, ["rdpg", "ddpg"]);
+    // The ledger: every trial finished on this binary, none restarted; a trial whose run
+    // directory (and uncommitted result) is lost is counted as restarted, from zero.
+    let collect = || {
+        ok(rdpg()
+            .current_dir(&dir)
+            .args(["sweep", "s.toml", "--collect"]))
+    };
+    collect();
+    let ledger = json_file(&dir.join("results/s/ledger.json"));
+    let rows = ledger["trials"].as_array().unwrap();
+    assert_eq!(rows.len(), 4);
+    for r in rows {
+        assert_eq!(
+            (r["status"].as_str(), r["restarts"].as_u64()),
+            (Some("finished"), Some(0))
+        );
+        assert_eq!(r["steps"], r["budget"], "{r}");
+        assert_eq!(r["commits"].as_array().unwrap().len(), 1, "{r}");
+    }
+    std::fs::remove_dir_all(trials.join("rdpg-s0")).unwrap();
+    std::fs::remove_file(dir.join("results/s/rdpg-s0.json")).unwrap();
+    collect();
+    let ledger = json_file(&dir.join("results/s/ledger.json"));
+    let r0 = &ledger["trials"][0];
+    assert_eq!(
+        (
+            r0["trial"].as_str(),
+            r0["status"].as_str(),
+            r0["steps"].as_u64(),
+            r0["restarts"].as_u64()
+        ),
+        (Some("rdpg-s0"), Some("not started"), Some(0), Some(1))
+    );
+    let md = std::fs::read_to_string(dir.join("results/s/ledger.md")).unwrap();
+    assert!(
+        md.contains("| rdpg-s0 | rdpg | 0 | not started | 0 |"),
+        "{md}"
+    );
 }
 
 /// Every committed table (`results/<sweep>/table.md`) is what `rdpg table` makes of the
