@@ -9,6 +9,8 @@ cd "$root"
 # shellcheck source=scripts/setup/deps.sh
 source scripts/setup/deps.sh
 cargo fmt --all -- --check
+# No oversized rooms: a source file past 600 code lines is split (ARCHITECTURE.md).
+scripts/room_sizes.sh
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
 # The Python package against Gymnasium (uses the rdpg binary the tests above built).

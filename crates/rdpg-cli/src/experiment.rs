@@ -210,6 +210,71 @@ fn set_key(root: &mut toml::Table, assignment: &str) -> Result<()> {
     Ok(())
 }
 
+/// A rough upper estimate of the memory a run of `exp` needs, in bytes: the replay (or PPO's
+/// rollout), the environments, the networks with their optimiser state, and the activations
+/// of one update. In floating point, so that absurd sizes give an absurd estimate rather than
+/// an overflow.
+fn memory_estimate(exp: &Experiment) -> Result<f64> {
+    let env = rdpg_envs::make_with(&exp.train.env, &exp.train.env_options())?;
+    let (obs, act) = (
+        env.observation_space().dim() as f64,
+        env.action_space().dim() as f64,
+    );
+    let envs = exp.train.num_envs as f64;
+    // A walker with its Box2D world, terrain and lidar, with room to spare.
+    let per_env = 512.0 * 1024.0;
+    let bytes = match exp.learner() {
+        rdpg_agents::Learner::OffPolicy { agent, off_policy } => {
+            let critics = if agent.twin_critic { 2.0 } else { 1.0 };
+            let state = if agent.burn_in_from_stored_state {
+                2.0 * (agent.actor_hidden as f64 + critics * agent.critic_hidden as f64)
+            } else {
+                0.0
+            };
+            let injected = off_policy
+                .injection
+                .as_ref()
+                .map_or(0.0, |i| i.max_fraction);
+            let per_step = 4.0 * (obs + act + 2.0 + state);
+            let replay = off_policy.replay_capacity as f64 * (1.0 + injected) * per_step;
+            let width = (agent.embed_dim() + agent.actor_hidden + agent.critic_hidden) as f64;
+            let steps = agent.scan_len as f64 + agent.opt_len as f64 + 1.0;
+            // Inputs, gates and saved activations of the online and target networks.
+            let batch = agent.batch_size as f64 * steps * 4.0 * (obs + act + 16.0 * width) * 4.0;
+            // Networks, targets, gradients and Adam's two moments.
+            let params = 5.0 * 4.0 * agent.param_count(obs as usize, act as usize);
+            replay + batch + params
+        }
+        rdpg_agents::Learner::Ppo(p) => {
+            let rollout = p.rollout_steps as f64 * envs * 4.0 * (obs + act + 8.0);
+            let width: f64 = p.hidden.iter().map(|&h| h as f64).sum();
+            // Policy and value networks (square layers at most), gradients, Adam's moments.
+            let params =
+                2.0 * 4.0 * 4.0 * p.hidden.iter().map(|&h| (h as f64).powi(2)).sum::<f64>();
+            rollout + p.minibatch_size as f64 * 4.0 * (obs + act + 8.0 * width) * 4.0 + params
+        }
+    };
+    Ok(bytes + envs * per_env)
+}
+
+/// Refuses a run whose [`memory_estimate`] exceeds the memory this machine has available.
+pub fn check_memory(exp: &Experiment) -> Result<()> {
+    let need = memory_estimate(exp)?;
+    let available = crate::rundir::meminfo_bytes("MemAvailable");
+    let gib = |b: f64| b / (1u64 << 30) as f64;
+    if let Some(avail) = available.filter(|&a| need > a as f64) {
+        bail!(
+            "this run needs about {:.1} GiB (replay or rollout, {} environments, one update's \
+             activations) but the machine has {:.1} GiB available: lower \
+             off_policy.replay_capacity, agent.batch_size or train.num_envs",
+            gib(need),
+            exp.train.num_envs,
+            gib(avail as f64)
+        );
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

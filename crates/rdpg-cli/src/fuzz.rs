@@ -18,6 +18,8 @@
 //! `RDPG_FUZZ_ONLY=<reader>:<input>` replays one, `RDPG_FUZZ_SHOW=1` prints each refusal);
 //! longer runs: `RDPG_FUZZ_INPUTS=200000 cargo test --release -p rdpg-cli fuzz -- --nocapture`.
 
+#![cfg(test)]
+
 use std::collections::BTreeMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
@@ -711,7 +713,7 @@ fn fuzz_experiment_files() {
         Seal::None,
         Box::new(|dir, file, _| {
             let exp = Experiment::load(&dir.join(file), &[])?;
-            crate::train::check_memory(&exp)?;
+            crate::experiment::check_memory(&exp)?;
             Ok(())
         }),
     );

@@ -21,7 +21,6 @@ mod table;
 mod train;
 mod zoo;
 
-#[cfg(test)]
 mod fuzz;
 
 use anyhow::Result;

@@ -4,7 +4,6 @@
 //! `update.rs`, checkpoints in `checkpoint.rs`.
 
 use rdpg_core::rng::NpRng;
-use rdpg_core::SequenceBatch;
 use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
@@ -642,67 +641,6 @@ impl RdpgAgent {
                 .to_device(self.device);
             tch::no_grad(|| var.copy_(&src));
             offset += k;
-        }
-        Ok(())
-    }
-
-    /// Checks a batch against this agent (sizes, lengths, mask, stored state).
-    pub fn check_batch(&self, b: &SequenceBatch) -> Result<()> {
-        let err = |m: String| Err(AgentError::Shape(m));
-        let t = b.scan.saturating_add(b.opt);
-        // Saturating: a batch with absurd sizes does not match, rather than overflow.
-        let times = |a: usize, c: usize, d: usize| a.saturating_mul(c).saturating_mul(d);
-        if b.obs_dim != self.obs_dim || b.act_dim != self.act_dim {
-            return err(format!(
-                "batch obs/act dims {}/{} but agent {}/{}",
-                b.obs_dim, b.act_dim, self.obs_dim, self.act_dim
-            ));
-        }
-        if b.n == 0 || b.opt == 0 {
-            return err("batch needs n >= 1 and opt >= 1".into());
-        }
-        if b.obs.len() != times(b.n, t.saturating_add(1), b.obs_dim)
-            || b.actions.len() != times(b.n, t, b.act_dim)
-            || b.rewards.len() != times(b.n, t, 1)
-            || b.mask.len() != times(b.n, t, 1)
-            || b.scan_len.len() != b.n
-            || b.opt_len.len() != b.n
-            || b.tail_terminated.len() != b.n
-        {
-            return err("batch array lengths do not match n, scan, opt, dims".into());
-        }
-        for i in 0..b.n {
-            let (k, len) = (b.scan_len[i], b.opt_len[i]);
-            if k > b.scan || len == 0 || len > b.opt {
-                return err(format!(
-                    "window {i}: scan_len {k} / opt_len {len} out of range"
-                ));
-            }
-            for j in 0..t {
-                let real = if j < b.scan {
-                    j >= b.scan - k
-                } else {
-                    j - b.scan < len
-                };
-                if (b.mask[i * t + j] != 0.0) != real {
-                    return err(format!(
-                        "window {i}: mask at step {j} disagrees with lengths"
-                    ));
-                }
-            }
-        }
-        if self.cfg.burn_in_from_stored_state {
-            match &b.stored_state {
-                Some(s)
-                    if b.state_dim == self.state_dim() && s.len() == times(b.n, b.state_dim, 1) => {
-                }
-                _ => {
-                    return err(format!(
-                        "burn_in_from_stored_state needs stored states of size {}",
-                        self.state_dim()
-                    ))
-                }
-            }
         }
         Ok(())
     }

@@ -9,7 +9,7 @@
 //! `python -m rdpg.sweep` (Ray Tune: `crates/rdpg-py/python/rdpg/sweep.py`), which starts,
 //! resumes or skips each trial. `--collect` writes each finished trial's small result file
 //! under the sweep's `results` folder (what `rdpg table` reads and what gets committed), and
-//! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`Ledger`]).
+//! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`results::Ledger`]).
 //!
 //! ```toml
 //! name = "table1-cpu"                      # default: the file's stem
@@ -28,6 +28,11 @@
 //! paper = { label = "Our RDPG", r100ma = 227.5, success = 23.5 }
 //! ```
 
+mod results;
+
+use results::{collect, write_ledger};
+pub use results::{run_record, RunRecord, TrialResult};
+
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
@@ -37,7 +42,7 @@ use rdpg_agents::Algo;
 use serde::{Deserialize, Serialize};
 
 use crate::experiment::Experiment;
-use crate::rundir::{read_json, write_json, Metric, RunDir, Summary, TestSummary};
+use crate::rundir::write_json;
 
 /// Arguments of `rdpg sweep`.
 #[derive(Debug, Args)]
@@ -407,8 +412,11 @@ pub fn run(a: &SweepArgs) -> Result<()> {
         for line in collect(&sweep)? {
             println!("{line}");
         }
-        let path = write_ledger(&sweep)?;
-        println!("{}", path.display());
+        // The ledger is rewritten where the sweep runs (a clone without its run directories
+        // keeps the committed one).
+        if sweep.trials.iter().any(|t| t.run_dir.exists()) {
+            println!("{}", write_ledger(&sweep)?.display());
+        }
         return Ok(());
     }
     if a.cpus == Some(0) {
@@ -514,268 +522,6 @@ fn print_plan(sweep: &Sweep) -> Result<()> {
     });
     println!("{}", serde_json::to_string_pretty(&plan)?);
     Ok(())
-}
-
-/// A finished trial's small result file (`results/<sweep>/<row>-s<seed>.json`): what
-/// `rdpg table` aggregates, with no run directory needed.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TrialResult {
-    /// Sweep name.
-    pub sweep: String,
-    /// Row name.
-    pub row: String,
-    /// The row's place in the sweep file (tables list rows in this order).
-    pub row_index: usize,
-    /// Seed.
-    pub seed: u64,
-    /// The paper's row it reproduces.
-    pub paper: Option<PaperRow>,
-    /// The description of the sweep (its shared settings).
-    #[serde(default)]
-    pub description: String,
-    /// The run's `versions.jsonl`: the binary and commit of its start and every resume.
-    pub versions: Vec<serde_json::Value>,
-    /// Agent steps done.
-    pub steps: u64,
-    /// Frames (agent steps × action repeat).
-    pub frames: u64,
-    /// Learner updates done.
-    pub updates: u64,
-    /// The run's summary (rewards, R_100MA, wall time, machine, its test).
-    pub summary: Summary,
-    /// Validation evaluations: (agent step, mean stock return).
-    pub curve: Vec<(u64, f64)>,
-    /// The command that reproduces it.
-    pub command: String,
-}
-
-impl TrialResult {
-    /// The test of the chosen agent.
-    pub fn test(&self) -> Option<&TestSummary> {
-        self.summary.test_eval.as_ref()
-    }
-}
-
-/// What a run's files say beyond its summary ([`run_record`]).
-pub struct RunRecord {
-    /// Learner updates done.
-    pub updates: u64,
-    /// Validation evaluations: (agent step, mean stock return).
-    pub curve: Vec<(u64, f64)>,
-    /// The `versions.jsonl` lines.
-    pub versions: Vec<serde_json::Value>,
-}
-
-/// Reads a run's [`RunRecord`] from its metrics and `versions.jsonl`.
-pub fn run_record(run: &RunDir) -> Result<RunRecord> {
-    let metrics = run.read_metrics()?;
-    let updates = metrics
-        .iter()
-        .map(|m| match m {
-            Metric::Episode { learner, .. } => learner.updates,
-            Metric::Eval { .. } => 0,
-        })
-        .sum();
-    let curve = metrics
-        .iter()
-        .filter_map(|m| match *m {
-            Metric::Eval {
-                step, mean_return, ..
-            } => Some((step, mean_return)),
-            Metric::Episode { .. } => None,
-        })
-        .collect();
-    let versions = std::fs::read_to_string(run.versions())
-        .unwrap_or_default()
-        .lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect();
-    Ok(RunRecord {
-        updates,
-        curve,
-        versions,
-    })
-}
-
-/// Writes the result file of every finished trial; returns one line per file written.
-fn collect(sweep: &Sweep) -> Result<Vec<String>> {
-    let mut out = Vec::new();
-    for t in &sweep.trials {
-        let run = RunDir::new(&t.run_dir);
-        let Ok(summary) = run.read_summary() else {
-            continue;
-        };
-        if summary.steps < t.steps || summary.test_eval.is_none() {
-            continue;
-        }
-        let RunRecord {
-            updates,
-            curve,
-            versions,
-        } = run_record(&run)?;
-        let mut command = format!("rdpg train --config {}", t.base.display());
-        for s in &t.set {
-            command += &format!(" --set '{s}'");
-        }
-        let r = TrialResult {
-            sweep: sweep.file.name.clone(),
-            row: t.row.clone(),
-            row_index: t.row_index,
-            seed: t.seed,
-            paper: t.paper.clone(),
-            description: sweep.file.description.clone(),
-            versions,
-            steps: summary.steps,
-            frames: summary.steps * t.exp.train.action_repeat as u64,
-            updates,
-            summary,
-            curve,
-            command,
-        };
-        std::fs::create_dir_all(&sweep.results)
-            .with_context(|| format!("creating {}", sweep.results.display()))?;
-        // Whole or not at all: written beside and renamed into place.
-        let path = sweep.results.join(format!("{}.json", t.id));
-        let partial = path.with_extension("json.partial");
-        write_json(&partial, &r)?;
-        std::fs::rename(&partial, &path)
-            .with_context(|| format!("renaming {} to {}", partial.display(), path.display()))?;
-        out.push(path.display().to_string());
-    }
-    Ok(out)
-}
-
-/// One trial's line in the ledger.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LedgerRow {
-    /// `<row>-s<seed>`.
-    pub trial: String,
-    /// Row name.
-    pub row: String,
-    /// Seed.
-    pub seed: u64,
-    /// `finished`, `in progress` (checkpointed, not at its budget) or `not started`.
-    pub status: String,
-    /// Agent steps of its last checkpoint (its result's, once finished).
-    pub steps: u64,
-    /// Its budget.
-    pub budget: u64,
-    /// The binary commits that trained it (start and resumes), in order, without repeats.
-    pub commits: Vec<String>,
-    /// Times it started again from zero because its run directory was lost (its steps went
-    /// back): its steps are those of the latest start, never spliced onto a lost one.
-    pub restarts: u32,
-}
-
-/// The committed record of a sweep's trials: what ran, how far, on which binary, and which
-/// trials restarted after a lost machine (`results/<sweep>/ledger.json`, with a Markdown
-/// view `ledger.md`). Each `--collect` rebuilds it from the run directories and the previous
-/// ledger.
-#[derive(Debug, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Ledger {
-    /// Sweep name.
-    pub sweep: String,
-    /// One row per trial, in the sweep's order.
-    pub trials: Vec<LedgerRow>,
-}
-
-fn unique_commits(versions: &[serde_json::Value]) -> Vec<String> {
-    let mut out: Vec<String> = Vec::new();
-    for v in versions {
-        if let Some(c) = v["commit"].as_str() {
-            let c: String = c.chars().take(12).collect();
-            if out.last() != Some(&c) {
-                out.push(c);
-            }
-        }
-    }
-    out
-}
-
-/// The ledger now, from the trials' result files and run directories and the ledger before
-/// (its restart counts, and steps to compare with).
-fn ledger(sweep: &Sweep, before: &Ledger) -> Result<Ledger> {
-    let mut trials = Vec::new();
-    for t in &sweep.trials {
-        let old = before.trials.iter().find(|r| r.trial == t.id);
-        let result = sweep.results.join(format!("{}.json", t.id));
-        let run = RunDir::new(&t.run_dir);
-        let (status, steps, commits) = if result.exists() {
-            let r: TrialResult = read_json(&result)?;
-            ("finished", r.steps, unique_commits(&r.versions))
-        } else if let Ok(summary) = run.read_summary() {
-            let versions = run_record(&run)?.versions;
-            ("in progress", summary.steps, unique_commits(&versions))
-        } else {
-            ("not started", 0, Vec::new())
-        };
-        let went_back = old.is_some_and(|o| steps < o.steps);
-        trials.push(LedgerRow {
-            trial: t.id.clone(),
-            row: t.row.clone(),
-            seed: t.seed,
-            status: status.into(),
-            steps,
-            budget: t.steps,
-            commits,
-            restarts: old.map_or(0, |o| o.restarts) + u32::from(went_back),
-        });
-    }
-    Ok(Ledger {
-        sweep: sweep.file.name.clone(),
-        trials,
-    })
-}
-
-/// The ledger as a Markdown table.
-fn ledger_markdown(l: &Ledger) -> String {
-    let mut md = format!(
-        "# Ledger of sweep `{}`\n\nWritten by `rdpg sweep <file> --collect` from the run \
-         directories; a restarted trial started again from zero after its run directory was \
-         lost.\n\n| trial | row | seed | status | steps | budget | commits | restarts |\n\
-         |---|---|---:|---|---:|---:|---|---:|\n",
-        l.sweep
-    );
-    for r in &l.trials {
-        md += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
-            r.trial,
-            r.row,
-            r.seed,
-            r.status,
-            r.steps,
-            r.budget,
-            r.commits.join(", "),
-            r.restarts
-        );
-    }
-    md
-}
-
-/// Rebuilds and writes the sweep's ledger (JSON and Markdown); returns the JSON's path.
-fn write_ledger(sweep: &Sweep) -> Result<PathBuf> {
-    let path = sweep.results.join("ledger.json");
-    let before: Ledger = if path.exists() {
-        read_json(&path)?
-    } else {
-        Ledger::default()
-    };
-    let l = ledger(sweep, &before)?;
-    std::fs::create_dir_all(&sweep.results)
-        .with_context(|| format!("creating {}", sweep.results.display()))?;
-    for (p, text) in [
-        (path.clone(), serde_json::to_string_pretty(&l)? + "\n"),
-        (sweep.results.join("ledger.md"), ledger_markdown(&l)),
-    ] {
-        let partial = p.with_extension("partial");
-        std::fs::write(&partial, text).with_context(|| format!("writing {}", partial.display()))?;
-        std::fs::rename(&partial, &p)
-            .with_context(|| format!("renaming {} to {}", partial.display(), p.display()))?;
-    }
-    Ok(path)
 }
 
 #[cfg(test)]
