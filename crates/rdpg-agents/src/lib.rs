@@ -50,7 +50,7 @@ pub mod rdpg;
 
 use std::path::Path;
 
-pub use common::tensor::set_flush_denormal;
+pub use common::tensor::{set_flush_denormal, set_num_threads, MAX_THREADS};
 pub use common::{
     Algo, DeterministicPolicy, DeviceSpec, EpisodeRecord, EvalRecord, Quiet, TrainConfig,
     TrainObserver, Trainer, UpdateStats,
@@ -119,15 +119,6 @@ pub fn load_policy(algo: Algo, dir: &Path) -> Result<Box<dyn DeterministicPolicy
 pub fn cuda_available() -> bool {
     tch::Cuda::is_available()
 }
-
-/// Sets the number of intra-op CPU threads libtorch uses (process-wide); `n` is capped at
-/// [`MAX_THREADS`].
-pub fn set_num_threads(n: usize) {
-    tch::set_num_threads(n.clamp(1, MAX_THREADS) as i32);
-}
-
-/// The most intra-op threads a config may ask for (`num_threads`).
-pub const MAX_THREADS: usize = 1024;
 
 #[cfg(test)]
 mod tests {

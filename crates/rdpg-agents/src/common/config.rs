@@ -142,7 +142,11 @@ impl TrainConfig {
             return bad("train.total_steps", "must be positive".into());
         }
         within("train.num_envs", self.num_envs, 4096)?;
-        within("train.workers", self.workers, crate::MAX_THREADS)?;
+        within(
+            "train.workers",
+            self.workers,
+            crate::common::tensor::MAX_THREADS,
+        )?;
         within("train.eval_episodes", self.eval_episodes, 1_000_000)?;
         within("train.test_episodes", self.test_episodes, 1_000_000)?;
         let overlap = |a: u64, n: usize, b: u64, m: usize| {

@@ -221,3 +221,12 @@ impl Mlp {
 }
 
 pub use rdpg_core::fpmode::set_flush_denormal;
+
+/// Sets the number of intra-op CPU threads libtorch uses (process-wide); `n` is capped at
+/// [`MAX_THREADS`].
+pub fn set_num_threads(n: usize) {
+    tch::set_num_threads(n.clamp(1, MAX_THREADS) as i32);
+}
+
+/// The most intra-op threads a config may ask for (`num_threads`).
+pub const MAX_THREADS: usize = 1024;

@@ -169,7 +169,7 @@ impl PpoAgent {
             )));
         }
         if let Some(n) = cfg.num_threads {
-            crate::set_num_threads(n);
+            crate::common::tensor::set_num_threads(n);
         }
         let device = resolve_device(cfg.device)?;
         let vs = VarStore::new(device);

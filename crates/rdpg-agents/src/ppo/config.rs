@@ -137,11 +137,14 @@ impl PpoConfig {
         }
         if self
             .num_threads
-            .is_some_and(|n| n == 0 || n > crate::MAX_THREADS)
+            .is_some_and(|n| n == 0 || n > crate::common::tensor::MAX_THREADS)
         {
             return bad(
                 "ppo.num_threads",
-                format!("must be 1 to {} when given", crate::MAX_THREADS),
+                format!(
+                    "must be 1 to {} when given",
+                    crate::common::tensor::MAX_THREADS
+                ),
             );
         }
         Ok(())

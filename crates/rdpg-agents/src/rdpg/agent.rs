@@ -282,7 +282,7 @@ impl RdpgAgent {
             });
         }
         if let Some(n) = cfg.num_threads {
-            crate::set_num_threads(n);
+            crate::common::tensor::set_num_threads(n);
         }
         let device = resolve_device(cfg.device)?;
         let (d, a) = (obs_dim as i64, act_dim as i64);

@@ -487,11 +487,14 @@ impl RdpgConfig {
         }
         if self
             .num_threads
-            .is_some_and(|n| n == 0 || n > crate::MAX_THREADS)
+            .is_some_and(|n| n == 0 || n > crate::common::tensor::MAX_THREADS)
         {
             return Err(bad(
                 "num_threads",
-                format!("must be 1 to {} when given", crate::MAX_THREADS),
+                format!(
+                    "must be 1 to {} when given",
+                    crate::common::tensor::MAX_THREADS
+                ),
             ));
         }
         if let Some(f) = &self.fork {
