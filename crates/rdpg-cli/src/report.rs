@@ -52,7 +52,7 @@ struct Run {
 fn read_run(dir: &Path) -> Result<Run> {
     let run = RunDir::new(dir);
     let (summary, metrics) = if run.is_zoo_entry() {
-        crate::zoo::read_as_run(&run)?
+        crate::rundir::read_as_run(&run)?
     } else {
         (run.read_summary()?, run.read_metrics()?)
     };

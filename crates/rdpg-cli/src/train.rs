@@ -476,7 +476,7 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     // The teacher's own test: its summary's, which tests the best (a zoo entry's: the one it
     // ships); other agents of a run have none.
     let test = match a.checkpoint {
-        Which::Best if run.is_zoo_entry() => crate::zoo::read_as_run(&run)?.0.test_eval,
+        Which::Best if run.is_zoo_entry() => crate::rundir::read_as_run(&run)?.0.test_eval,
         Which::Best => run.read_summary().ok().and_then(|s| s.test_eval),
         _ => None,
     }

@@ -16,11 +16,13 @@
 //!
 //! The module's rooms: this file is the layout and its transactions ([`RunDir`]);
 //! [`schema`] the files' contents (metric rows, summary, teachers, tests); [`log`] the metric
-//! writer of a running run ([`RunLog`]); [`machine`] the host's facts.
+//! writer of a running run ([`RunLog`]); [`machine`] the host's facts; [`zoo_entry`] a zoo
+//! entry's summary, and the entry read as a run.
 
 mod log;
 mod machine;
 mod schema;
+mod zoo_entry;
 
 pub use log::{MovingAverage, RunLog};
 pub use machine::{machine_description, meminfo_bytes};
@@ -28,6 +30,7 @@ pub use schema::{
     EvalSummary, Metric, Summary, TeacherSummary, TestSummary, UpdateSums, EPISODES_HEADER,
     EVALS_HEADER,
 };
+pub use zoo_entry::{read_as_run, ZooAgent, ZooSummary, ZooTest, ZooTraining};
 
 use std::fs::File;
 use std::io::Write;
