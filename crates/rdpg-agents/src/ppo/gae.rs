@@ -2,7 +2,28 @@
 //! estimation ([`gae`], and `rollout_advantages` over a vector env's rollout) and the
 //! adaptive KL coefficient ([`adapt_kl_coef`]).
 
-use super::trainer::Rollout;
+use serde::{Deserialize, Serialize};
+
+/// The steps collected since the last update phase, `len` vector steps of `n` environments,
+/// step-major (`[len, n, ...]`).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub(super) struct Rollout {
+    /// Vector steps collected.
+    pub(super) len: usize,
+    /// Observations acted on, `[len, n, D]`.
+    pub(super) obs: Vec<f32>,
+    /// Sampled (unclipped) actions, `[len, n, A]`.
+    pub(super) actions: Vec<f32>,
+    /// Training rewards, `[len, n]`.
+    pub(super) rewards: Vec<f64>,
+    /// The step reached a terminal state, `[len, n]`.
+    pub(super) terminated: Vec<bool>,
+    /// An episode ended on the step (terminated or truncated), `[len, n]`.
+    pub(super) ended: Vec<bool>,
+    /// `(t * n + i, last observation)` of every episode cut by the time limit (not terminal):
+    /// the state its last step bootstraps from.
+    pub(super) truncated_obs: Vec<(usize, Vec<f32>)>,
+}
 
 /// Generalised advantage estimates (Schulman et al. 2016, Eqs. 10 and 16) of one environment's
 /// sequence of `T` consecutive steps, which may span several episodes.

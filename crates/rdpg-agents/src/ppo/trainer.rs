@@ -12,33 +12,12 @@ use serde::{Deserialize, Serialize};
 
 use super::agent::{PpoAgent, PpoBatch, PpoStats};
 use super::config::PpoConfig;
-use super::gae::rollout_advantages;
+use super::gae::{rollout_advantages, Rollout};
 use crate::common::checkpoint::{
     ckpt_err, read_bin, read_json, write_bin, write_json, Header, TrainerKind,
 };
 use crate::common::{evaluate_policy, Collector, EvalRecord, TrainConfig, TrainObserver, Trainer};
 use crate::error::{AgentError, Result};
-
-/// The steps collected since the last update phase, `len` vector steps of `n` environments,
-/// step-major (`[len, n, ...]`).
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-pub(super) struct Rollout {
-    /// Vector steps collected.
-    pub(super) len: usize,
-    /// Observations acted on, `[len, n, D]`.
-    pub(super) obs: Vec<f32>,
-    /// Sampled (unclipped) actions, `[len, n, A]`.
-    pub(super) actions: Vec<f32>,
-    /// Training rewards, `[len, n]`.
-    pub(super) rewards: Vec<f64>,
-    /// The step reached a terminal state, `[len, n]`.
-    pub(super) terminated: Vec<bool>,
-    /// An episode ended on the step (terminated or truncated), `[len, n]`.
-    pub(super) ended: Vec<bool>,
-    /// `(t * n + i, last observation)` of every episode cut by the time limit (not terminal):
-    /// the state its last step bootstraps from.
-    pub(super) truncated_obs: Vec<(usize, Vec<f32>)>,
-}
 
 /// PPO's own loop state, saved with a checkpoint as `loop.bin` (the collector's is
 /// `collector.bin`).
