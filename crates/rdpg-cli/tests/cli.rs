@@ -1383,10 +1383,27 @@ fn sweep_files_are_checked_and_planned() {
         .all(|r| r["core_hours_per_trial"].as_f64().unwrap() > 0.0));
 }
 
-/// `rdpg sweep` end to end on a local Ray: two rows × two seeds of the cue task, stopped once
-/// with SIGINT (Ctrl-C) after the first checkpoint and resumed by running the command again;
-/// the interrupted trials resume (not restart) and `rdpg table` gives the numbers of the runs'
-/// own summaries.
+/// The processes whose command line names `needle` (Linux: read from /proc).
+fn processes_naming(needle: &str) -> Vec<u32> {
+    let mut pids = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        if let Ok(cmd) = std::fs::read(entry.path().join("cmdline")) {
+            if String::from_utf8_lossy(&cmd).contains(needle) && pid != std::process::id() {
+                pids.push(pid);
+            }
+        }
+    }
+    pids
+}
+
+/// `rdpg sweep` end to end on a local Ray: two rows × two seeds of the cue task. Stopped with
+/// SIGTERM after the first checkpoint, the driver exits only when every running trial has
+/// saved; rerun on one core, one trial's `rdpg train` stopped from outside stops the sweep
+/// (no other trial runs); the third run finishes. The interrupted trials resume (not restart)
+/// and `rdpg table` gives the numbers of the runs' own summaries.
 #[test]
 fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
     let python = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
@@ -1411,14 +1428,16 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         ),
     )
     .unwrap();
-    let sweep = || {
+    let sweep_on = |cpus: &str| {
         let mut c = rdpg();
         c.current_dir(&dir)
-            .args(["sweep", "s.toml", "--cpus", "2", "--python"])
+            .args(["sweep", "s.toml", "--cpus", cpus, "--python"])
             .arg(&python);
         c
     };
+    let sweep = || sweep_on("2");
     let trials = dir.join("runs/sweeps/s/trials");
+    let trials_text = trials.display().to_string();
     let mut child = sweep()
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
@@ -1437,11 +1456,60 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         );
         std::thread::sleep(std::time::Duration::from_millis(200));
     }
-    ok(Command::new("kill").args(["-INT", &child.id().to_string()]));
+    ok(Command::new("kill").args(["-TERM", &child.id().to_string()]));
     assert!(
         !child.wait().unwrap().success(),
         "an interrupted sweep reported success"
     );
+    assert_eq!(
+        processes_naming(&trials_text),
+        Vec::<u32>::new(),
+        "a trial's rdpg train outlived its stopped sweep"
+    );
+    // Rerun on one core; stop the first trial that runs from outside, as an operator would.
+    let events = |t: &str| std::fs::read_to_string(trials.join(t).join("versions.jsonl")).ok();
+    let all = ["rdpg-s0", "rdpg-s1", "ddpg-s0", "ddpg-s1"];
+    let before: Vec<Option<String>> = all.iter().map(|t| events(t)).collect();
+    let child = sweep_on("1")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let running = dir.join("runs/sweeps/s/running");
+    let t0 = std::time::Instant::now();
+    let (stopped, pid) = loop {
+        assert!(t0.elapsed().as_secs() < 180, "no trial ran after 3 minutes");
+        let rec = std::fs::read_dir(&running).ok().and_then(|d| {
+            d.flatten()
+                .find(|e| e.file_name().to_string_lossy().ends_with(".json"))
+        });
+        if let Some(e) = rec {
+            if let Ok(v) = serde_json::from_slice::<Value>(&std::fs::read(e.path()).unwrap()) {
+                let name = e.file_name().to_string_lossy().to_string();
+                break (
+                    name.trim_end_matches(".json").to_string(),
+                    v["pid"].as_u64().unwrap(),
+                );
+            }
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    // Past its start-up (the signal handler is installed before the run is loaded).
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    ok(Command::new("kill").args(["-TERM", &pid.to_string()]));
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(&format!("trial {stopped} was stopped from outside")),
+        "{err}"
+    );
+    assert_eq!(processes_naming(&trials_text), Vec::<u32>::new());
+    for (t, b) in all.iter().zip(&before) {
+        if *t != stopped {
+            assert_eq!(&events(t), b, "{t} ran after {stopped} was stopped");
+        }
+    }
     let out = ok(&mut sweep());
     let last = String::from_utf8_lossy(&out.stdout)
         .lines()

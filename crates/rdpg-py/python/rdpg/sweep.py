@@ -8,6 +8,12 @@ checkpoint naming the run directory and its step -- never the directory itself, 
 replay and can be hundreds of MB. Rerunning the command restores the Tune experiment: unfinished
 trials continue with ``rdpg train --resume``, finished ones are skipped. A trial that finishes
 has its small result file written (``rdpg sweep FILE --collect``) for ``rdpg table``.
+
+Stopping. Ctrl-C or SIGTERM to the driver stops the sweep: each running ``rdpg train`` gets one
+SIGTERM, and the driver exits only when every one has saved its checkpoint. A trial's ``rdpg
+train`` stopped from outside (it saves and exits with 130) stops the whole sweep the same way,
+rather than counting as a failure that lets the next trial start. Each running trial has a
+record ``<storage>/running/<trial>.json`` (its process and run directory) while it runs.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 
@@ -46,6 +53,66 @@ def _wait_unlocked(run_dir: str) -> None:
         fcntl.flock(f, fcntl.LOCK_UN)
 
 
+# `rdpg train` exits with 130 when a signal stopped it after saving its checkpoint.
+_INTERRUPTED = 130
+
+
+def _running_dir(storage: str) -> str:
+    return os.path.join(storage, "running")
+
+
+def _stop_marker(storage: str) -> str:
+    return os.path.join(storage, "stop.json")
+
+
+def _alive(pid: int, run_dir: str) -> bool:
+    """Whether ``pid`` is still the ``rdpg train`` of ``run_dir`` (not a reused pid)."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return run_dir.encode() in f.read()
+    except OSError:
+        return False
+
+
+def _stop_once(storage: str, trial_id: str, pid: int, run_dir: str) -> bool:
+    """Sends the trial's ``rdpg train`` its one SIGTERM, unless someone already did: a second
+    signal would make it exit without saving. True when this call is the one that sent it."""
+    flag = os.path.join(_running_dir(storage), trial_id + ".stopping")
+    try:
+        os.close(os.open(flag, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    if _alive(pid, run_dir):
+        os.kill(pid, signal.SIGTERM)
+    return True
+
+
+def _stop_all_and_wait(storage: str) -> list[str]:
+    """Stops every running trial's ``rdpg train`` (one SIGTERM each) and waits until each has
+    saved and released its run. Returns the trials it waited for."""
+    d = _running_dir(storage)
+    waited = []
+    for name in sorted(os.listdir(d)) if os.path.isdir(d) else []:
+        if not name.endswith(".json"):
+            continue
+        trial_id = name[: -len(".json")]
+        try:
+            with open(os.path.join(d, name)) as f:
+                rec = json.load(f)
+        except (OSError, ValueError):
+            continue
+        if _alive(rec["pid"], rec["run_dir"]):
+            _stop_once(storage, trial_id, rec["pid"], rec["run_dir"])
+            _wait_unlocked(rec["run_dir"])
+            waited.append(trial_id)
+        for stale in (name, trial_id + ".stopping"):
+            try:
+                os.remove(os.path.join(d, stale))
+            except FileNotFoundError:
+                pass
+    return waited
+
+
 def _checkpoint(run_dir: str, step: int):
     from ray import tune
 
@@ -57,7 +124,7 @@ def _checkpoint(run_dir: str, step: int):
 
 def make_trainable(plan: dict):
     trials = {t["id"]: t for t in plan["trials"]}
-    binary, cwd = plan["binary"], plan["cwd"]
+    binary, cwd, storage = plan["binary"], plan["cwd"], plan["storage"]
 
     def collect() -> None:
         subprocess.run(
@@ -72,6 +139,9 @@ def make_trainable(plan: dict):
 
         t = trials[config["trial"]]
         run_dir = t["run_dir"]
+        if os.path.exists(_stop_marker(storage)):
+            # The sweep is stopping: start nothing new (the rerun resumes this trial).
+            raise RuntimeError(f"trial {t['id']}: not started, the sweep is stopping")
         last_step = -1
         ckpt = tune.get_checkpoint()
         if ckpt is not None:
@@ -102,6 +172,10 @@ def make_trainable(plan: dict):
                 proc = subprocess.Popen(
                     args, cwd=cwd, stdout=log, stderr=log, start_new_session=True
                 )
+                running = os.path.join(_running_dir(storage), t["id"] + ".json")
+                os.makedirs(os.path.dirname(running), exist_ok=True)
+                with open(running, "w") as f:
+                    json.dump({"pid": proc.pid, "run_dir": run_dir}, f)
                 metrics, offset = os.path.join(run_dir, "metrics.jsonl"), 0
                 try:
                     while True:
@@ -111,12 +185,24 @@ def make_trainable(plan: dict):
                             break
                         time.sleep(1.0)
                 finally:
-                    # Stopped by Tune (Ctrl-C) or failing: one SIGTERM, and no wait (Ray may end
-                    # this worker at any moment): the run saves its checkpoint and exits on its
-                    # own (Ray is told to leave a worker's children alone), and a rerun waits
-                    # for its lock. A worker killed outright leaves its run going to the end.
+                    # Stopped by Tune or failing: one SIGTERM, and no wait (Ray may end this
+                    # worker at any moment): the run saves its checkpoint and exits on its own
+                    # (Ray is told to leave a worker's children alone); the driver waits for it
+                    # before it exits, and a rerun waits for its lock.
                     if proc.poll() is None:
-                        proc.send_signal(signal.SIGTERM)
+                        _stop_once(storage, t["id"], proc.pid, run_dir)
+            stopped_here = os.path.exists(running[: -len(".json")] + ".stopping")
+            for done in (running, running[: -len(".json")] + ".stopping"):
+                try:
+                    os.remove(done)
+                except FileNotFoundError:
+                    pass
+            if rc == _INTERRUPTED and not stopped_here:
+                # Stopped from outside, its checkpoint saved: the operator is stopping the
+                # sweep, not this trial failing. The driver sees the marker and stops Tune.
+                with open(_stop_marker(storage), "w") as f:
+                    json.dump({"trial": t["id"]}, f)
+                raise RuntimeError(f"trial {t['id']}: stopped from outside at its checkpoint")
             if rc != 0:
                 with open(log_path, "rb") as f:
                     tail = f.read()[-2000:].decode(errors="replace")
@@ -208,6 +294,27 @@ def main(argv: list[str]) -> int:
     else:
         with open(stored, "w") as f:
             json.dump(key, f)
+    # Left by an earlier stop: the trials it names resume now.
+    if os.path.exists(_stop_marker(storage)):
+        os.remove(_stop_marker(storage))
+    _stop_all_and_wait(storage)
+    stopping = threading.Event()
+
+    def stop_sweep(*_args) -> None:
+        # Tune ends a run on SIGINT as on Ctrl-C: trials stop, its state is saved.
+        if not stopping.is_set():
+            stopping.set()
+            os.kill(os.getpid(), signal.SIGINT)
+
+    signal.signal(signal.SIGTERM, stop_sweep)
+
+    def watch_marker() -> None:
+        while not stopping.is_set():
+            if os.path.exists(_stop_marker(storage)):
+                stop_sweep()
+            time.sleep(0.5)
+
+    threading.Thread(target=watch_marker, daemon=True).start()
     if plan.get("address"):
         ray.init(address=plan["address"])
     else:
@@ -239,7 +346,19 @@ def main(argv: list[str]) -> int:
         grid = tuner.fit()
         errors = [str(r.error) for r in grid if r.error]
     finally:
+        stopping.set()
+        waited = _stop_all_and_wait(storage)
+        if waited:
+            print(f"saved and stopped: {', '.join(waited)}", file=sys.stderr)
         ray.shutdown()
+    if os.path.exists(_stop_marker(storage)):
+        with open(_stop_marker(storage)) as f:
+            who = json.load(f).get("trial")
+        print(
+            f"the sweep stopped: trial {who} was stopped from outside; rerun the command to "
+            "continue every unfinished trial",
+            file=sys.stderr,
+        )
     finished = [t["id"] for t in plan["trials"] if _finished(t)]
     print(
         json.dumps(
