@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,8 +17,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import rdpg
+from helpers import ROOT, eval_returns, train
 
-ROOT = Path(__file__).resolve().parents[3]
 
 
 def _episode_actions(rng: np.random.Generator, n: int, calm: bool) -> np.ndarray:
@@ -167,7 +166,7 @@ def test_seeds_past_64_bits_seed_as_gymnasium_does():
     assert np.array_equal(ours.step(act)[0], theirs.step(act)[0])
 
 
-def test_bad_input_raises_with_the_rust_message():
+def test_bad_input_raises_with_the_rust_message(tmp_path):
     with pytest.raises(ValueError, match="Nope-v0"):
         rdpg.RdpgEnv("Nope-v0")
     env = gym.make("rdpg/BipedalWalker-v3")
@@ -184,46 +183,32 @@ def test_bad_input_raises_with_the_rust_message():
     vec.reset(seed=0)
     with pytest.raises(ValueError, match="shape"):
         vec.step(np.zeros((3, 4), np.float32))
-    with pytest.raises(ValueError, match="not a run or zoo directory"):
+    with pytest.raises(FileNotFoundError, match="/nonexistent/run"):
         rdpg.Policy.load("/nonexistent/run")
-
-
-def _rdpg_binary() -> Path:
-    found = [ROOT / "target" / p / "rdpg" for p in ("release", "debug")]
-    found = [p for p in found if p.exists()]
-    if not found:
-        pytest.fail("no rdpg binary: build it first (cargo build)")
-    return max(found, key=lambda p: p.stat().st_mtime)
+    with pytest.raises(ValueError, match="not a run or zoo directory"):
+        rdpg.Policy.load(tmp_path)
 
 
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory) -> Path:
     """A tiny recurrent run on the cue task, trained by the rdpg binary."""
-    out = tmp_path_factory.mktemp("runs") / "cue"
-    subprocess.run(
-        [str(_rdpg_binary()), "train", "--quiet", "--config", str(ROOT / "configs/cue-rdpg.toml"),
-         "--out", str(out), "--steps", "1500", "--set", "train.eval_every=500",
-         "--set", "run.keep_agents_every=500",
-         "--set", "train.eval_episodes=10", "--set", "train.test_episodes=10"],
-        check=True, capture_output=True,
+    return train(
+        "cue-rdpg.toml", tmp_path_factory.mktemp("runs") / "cue", "--steps", "1500",
+        "--set", "train.eval_every=500", "--set", "run.keep_agents_every=500",
+        "--set", "train.eval_episodes=10", "--set", "train.test_episodes=10",
     )
-    return out
 
 
 @pytest.fixture(scope="module")
 def prev_action_run(tmp_path_factory) -> Path:
     """A tiny recurrent run on PendulumNoVel-v1 (actions in [-2, 2]) that reads its previous
     action in front of each observation (`train.prev_action_obs`)."""
-    out = tmp_path_factory.mktemp("runs") / "prev-action"
-    subprocess.run(
-        [str(_rdpg_binary()), "train", "--quiet", "--config",
-         str(ROOT / "configs/memory-rdpg.toml"), "--out", str(out), "--steps", "2200",
-         "--set", "train.prev_action_obs=true", "--set", "off_policy.warmup_steps=1000",
-         "--set", "train.eval_every=1100", "--set", "train.eval_episodes=2",
-         "--set", "train.test_episodes=2", "--set", "agent.parallel_twins=false"],
-        check=True, capture_output=True,
+    return train(
+        "memory-rdpg.toml", tmp_path_factory.mktemp("runs") / "prev-action", "--steps", "2200",
+        "--set", "train.prev_action_obs=true", "--set", "off_policy.warmup_steps=1000",
+        "--set", "train.eval_every=1100", "--set", "train.eval_episodes=2",
+        "--set", "train.test_episodes=2", "--set", "agent.parallel_twins=false",
     )
-    return out
 
 
 def _policy_dirs(*runs: Path) -> list[Path]:
@@ -238,12 +223,7 @@ def test_a_policy_in_a_plain_gymnasium_loop_scores_what_rdpg_eval_reports(
     for run in _policy_dirs(trained_run, prev_action_run):
         policy = rdpg.Policy.load(run)
         episodes, seed = 3, 3_000_000
-        out = subprocess.run(
-            [str(_rdpg_binary()), "eval", "--run", str(run), "--episodes", str(episodes),
-             "--seed", str(seed)],
-            check=True, capture_output=True, text=True,
-        )
-        want = json.loads(out.stdout)["returns"]
+        want = eval_returns(run, "--episodes", str(episodes), "--seed", str(seed))
         env = gym.make(f"rdpg/{policy.env_id}")
         got = []
         for k in range(episodes):
@@ -288,6 +268,22 @@ def test_batched_policy_acts_like_one_policy_per_env(trained_run):
             break
 
 
+def test_predict_carries_the_previous_action_input_in_its_state(prev_action_run):
+    # A run that reads its previous action: predict's state holds that action first, so
+    # predict over an episode, state threaded, equals act.
+    policy = rdpg.Policy.load(prev_action_run)
+    assert policy.state_len == policy.action_space.shape[0] + 2 * policy.config["agent"]["actor_hidden"]
+    env = policy.make_env()
+    obs, _ = env.reset(seed=9)
+    policy.reset()
+    state = None
+    for _ in range(50):
+        a, state = policy.predict(obs, state)
+        assert np.array_equal(a, policy.act(obs))
+        assert np.array_equal(state[0, : a.size], a)
+        obs, *_ = env.step(a)
+
+
 def test_a_damaged_policy_directory_is_refused(trained_run, tmp_path):
     bad = tmp_path / "bad"
     shutil.copytree(trained_run, bad)
@@ -306,12 +302,7 @@ def test_a_policy_loads_any_agent_of_a_run(trained_run):
     # Each agent of the run acts as `rdpg eval --checkpoint` scores it, and they differ.
     first_actions = {}
     for checkpoint in ("latest", "500"):
-        out = subprocess.run(
-            [str(_rdpg_binary()), "eval", "--run", str(trained_run), "--checkpoint", checkpoint,
-             "--episodes", "4"],
-            check=True, capture_output=True, text=True,
-        )
-        want = json.loads(out.stdout)["returns"]
+        want = eval_returns(trained_run, "--checkpoint", checkpoint, "--episodes", "4")
         policy = rdpg.Policy.load(trained_run, checkpoint=checkpoint)
         env = gym.make(f"rdpg/{policy.env_id}")
         got = []

@@ -14,6 +14,23 @@ pub trait DeterministicPolicy {
     /// The action in `[-1, 1]^act_dim` for one observation; an observation of the wrong size
     /// or with a non-finite value is an error.
     fn act(&mut self, obs: &[f32]) -> Result<Vec<f32>>;
+    /// What the policy carries from one step to the next (a recurrent state, a window of
+    /// observations) as flat values, for [`DeterministicPolicy::set_state`]; empty for a
+    /// stateless policy.
+    fn state(&self) -> Vec<f32> {
+        Vec::new()
+    }
+    /// Continues from a state [`DeterministicPolicy::state`] gave; a state of the wrong size
+    /// or out of range is an error and changes nothing.
+    fn set_state(&mut self, state: &[f32]) -> Result<()> {
+        if state.is_empty() {
+            return Ok(());
+        }
+        Err(AgentError::Shape(format!(
+            "a state of {} values for a stateless policy",
+            state.len()
+        )))
+    }
 }
 
 /// `a` unchanged if every component is finite, else [`AgentError::Diverged`] saying `what`

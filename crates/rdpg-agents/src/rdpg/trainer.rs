@@ -528,6 +528,18 @@ impl<A: Borrow<RdpgAgent>> DeterministicPolicy for RdpgPolicy<A> {
     fn act(&mut self, obs: &[f32]) -> Result<Vec<f32>> {
         self.agent.borrow().act(obs, &mut self.state)
     }
+    fn state(&self) -> Vec<f32> {
+        self.state.to_vec()
+    }
+    fn set_state(&mut self, state: &[f32]) -> Result<()> {
+        if let Some(k) = state.iter().position(|x| !x.is_finite()) {
+            return Err(AgentError::Input(format!(
+                "actor state value {k} is {}",
+                state[k]
+            )));
+        }
+        self.state.restore_env(0, state)
+    }
 }
 
 /// One adaptation of parameter noise (Plappert et al. 2018): perturbs a fresh copy of the

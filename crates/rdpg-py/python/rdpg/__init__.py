@@ -4,7 +4,7 @@
     import rdpg                                   # registers the rdpg/... ids
 
     env = gym.make("rdpg/BipedalWalker-v3")       # bit-identical to gym.make("BipedalWalker-v3")
-    policy = rdpg.Policy.load("zoo/walker-td3")   # a run or zoo directory
+    policy = rdpg.Policy.load(rdpg.zoo("walker-td3"))   # a run or zoo directory
     obs, _ = env.reset(seed=3_000_000)
     policy.reset()
     done = False
@@ -13,18 +13,18 @@
         done = term or trunc
 
 Environments step in Rust (the GIL released); the vector env steps its environments on Rust
-threads with Gymnasium's default next-step autoreset. Errors raised by the Rust side are
-``ValueError`` (bad input: unknown id, wrong action shape, NaN, bad policy directory) or
-``RuntimeError`` (a failure inside an environment), with the Rust message.
+threads with Gymnasium's next-step (default) or same-step autoreset. ``import rdpg`` and the
+environments load no libtorch: torch is imported the first time a ``Policy`` is loaded. Errors
+raised by the Rust side are ``ValueError`` (bad input: unknown id, wrong action shape, NaN,
+bad policy directory) or ``RuntimeError`` (a failure inside an environment), with the Rust
+message.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
-
-# The extension links the libtorch of the installed torch: importing torch first loads it.
-import torch  # noqa: F401
 
 import gymnasium as gym
 import numpy as np
@@ -33,8 +33,10 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from . import _rdpg
+from ._util import count as _count, f32 as _f32, spaces_of as _spaces
+from .policy import Policy
 
-__all__ = ["RdpgEnv", "RdpgVectorEnv", "Policy", "ENV_IDS", "make_vec"]
+__all__ = ["RdpgEnv", "RdpgVectorEnv", "Policy", "ENV_IDS", "make_vec", "zoo"]
 
 #: The rdpg environment ids and their time limits (those of Gymnasium for its own envs).
 ENV_IDS: dict[str, int] = {
@@ -49,14 +51,6 @@ ENV_IDS: dict[str, int] = {
 _FPS = {"BipedalWalker-v3": 50, "BipedalWalkerHardcore-v3": 50}
 
 
-def _f32(b: bytes, shape: tuple[int, ...]) -> np.ndarray:
-    return np.frombuffer(b, dtype=np.float32).reshape(shape).copy()
-
-
-def _spaces(low: list[float], high: list[float]) -> spaces.Box:
-    return spaces.Box(np.array(low, np.float32), np.array(high, np.float32), dtype=np.float32)
-
-
 def _seed_words(seed: int) -> list[int]:
     """A seed of any size as its little-endian 32-bit words, as numpy's ``SeedSequence`` reads
     an int (Gymnasium seeds with any non-negative int)."""
@@ -66,16 +60,6 @@ def _seed_words(seed: int) -> list[int]:
         seed >>= 32
         if not seed:
             return words
-
-
-def _count(name: str, value: Any, least: int = 0) -> int:
-    """``value`` as an int of at least ``least``, or a ValueError/TypeError naming ``name``
-    (rather than the extension's bare OverflowError)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name}: an int, got {type(value).__name__}")
-    if value < least:
-        raise ValueError(f"{name} = {value}: must be at least {least}")
-    return int(value)
 
 
 def _indices(name: str, values: Any) -> list[int]:
@@ -90,6 +74,22 @@ def _action_bytes(action: Any, shape: tuple[int, ...]) -> bytes:
     if a.shape != shape:
         raise ValueError(f"action of shape {a.shape}, expected {shape}")
     return np.ascontiguousarray(a).tobytes()
+
+
+def _info(raw: tuple) -> dict[str, Any]:
+    """A step's info dict from the extension's ``(success, stock_reward, course)``."""
+    success, stock, course = raw
+    info: dict[str, Any] = {"success": success}
+    if stock is not None:
+        info["stock_reward"] = stock
+    if course is not None:
+        # Walkers: the stump, staircase or pit the hull is over or just in front of, and the
+        # obstacles passed so far (what `rdpg eval` counts per obstacle kind).
+        at, stump, stairs, pit = course
+        info["obstacles_passed"] = {"stump": stump, "stairs": stairs, "pit": pit}
+        if at is not None:
+            info["obstacle"] = at
+    return info
 
 
 class RdpgEnv(gym.Env):
@@ -128,6 +128,10 @@ class RdpgEnv(gym.Env):
             _count("action_repeat", action_repeat, 1),
         )
         self.env_id = env_id
+        self.reward = reward
+        self.hide_obs = tuple(hide_obs)
+        self.fall_penalty = fall_penalty
+        self.action_repeat = action_repeat
         self.render_mode = render_mode
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": _FPS.get(env_id, 30)}
         self.observation_space = _spaces(*self._env.observation_bounds())
@@ -141,20 +145,11 @@ class RdpgEnv(gym.Env):
         return _f32(obs, self.observation_space.shape), {}
 
     def step(self, action):
-        obs, reward, terminated, truncated, success, stock, course = self._env.step(
+        obs, reward, terminated, truncated, info = self._env.step(
             _action_bytes(action, self.action_space.shape)
         )
-        info: dict[str, Any] = {"success": success}
-        if stock is not None:
-            info["stock_reward"] = stock
-        if course is not None:
-            # Walkers: the stump, staircase or pit the hull is over or just in front of, and
-            # the obstacles passed so far (what `rdpg eval` counts per obstacle kind).
-            at, stump, stairs, pit = course
-            info["obstacles_passed"] = {"stump": stump, "stairs": stairs, "pit": pit}
-            if at is not None:
-                info["obstacle"] = at
-        return _f32(obs, self.observation_space.shape), reward, terminated, truncated, info
+        shape = self.observation_space.shape
+        return _f32(obs, shape), reward, terminated, truncated, _info(info)
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -165,12 +160,17 @@ class RdpgEnv(gym.Env):
 
 class RdpgVectorEnv(VectorEnv):
     """``num_envs`` rdpg environments stepped in parallel on Rust threads (GIL released),
-    each with its registered time limit.
+    each with its registered time limit, the same options as ``RdpgEnv``.
 
     Autoreset: ``AutoresetMode.NEXT_STEP``, Gymnasium's default: the step that ends an episode
     returns its last observation; the next step of that sub-env ignores its action and returns
-    the first observation of a new episode (reward 0, both flags false). ``reset(seed=s)``
-    seeds sub-env ``i`` with ``s + i``, as Gymnasium's ``SyncVectorEnv`` does.
+    the first observation of a new episode (reward 0, both flags false). With
+    ``autoreset_mode=AutoresetMode.SAME_STEP`` the step that ends an episode returns the new
+    episode's first observation and puts the last one in ``info["final_obs"]`` (and its info
+    in ``info["final_info"]``). Infos are those of ``SyncVectorEnv`` over ``RdpgEnv``
+    instances: each key of the single env's info (``success``, ...) batched, with its ``_key``
+    mask.
+    ``reset(seed=s)`` seeds sub-env ``i`` with ``s + i``, as Gymnasium's ``SyncVectorEnv`` does.
     """
 
     def __init__(
@@ -183,6 +183,7 @@ class RdpgVectorEnv(VectorEnv):
         fall_penalty: float | None = None,
         action_repeat: int = 1,
         max_episode_steps: int | None = None,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
     ):
         # `gymnasium.make_vec` passes the registration's `max_episode_steps`: each sub-env
         # keeps its registered time limit, so only that value is accepted; any other keyword
@@ -192,6 +193,9 @@ class RdpgVectorEnv(VectorEnv):
                 f"max_episode_steps = {max_episode_steps}: the vector env keeps {env_id}'s "
                 f"registered limit {ENV_IDS.get(env_id)}"
             )
+        mode = AutoresetMode(autoreset_mode)
+        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+            raise ValueError(f"autoreset_mode {mode}: rdpg's vector env has NEXT_STEP and SAME_STEP")
         hide = _indices("hide_obs", hide_obs)
         self._env = _rdpg.VecEnv(
             env_id,
@@ -201,14 +205,20 @@ class RdpgVectorEnv(VectorEnv):
             None if threads is None else _count("threads", threads, 1),
             fall_penalty,
             _count("action_repeat", action_repeat, 1),
+            mode == AutoresetMode.SAME_STEP,
         )
         one = _rdpg.Env(env_id, reward, hide)
+        self.env_id = env_id
+        self.reward = reward
+        self.hide_obs = tuple(hide)
+        self.fall_penalty = fall_penalty
+        self.action_repeat = action_repeat
         self.num_envs = num_envs
         self.single_observation_space = _spaces(*one.observation_bounds())
         self.single_action_space = _spaces(*one.action_bounds())
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        self.metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+        self.metadata = {"autoreset_mode": mode}
         self.render_mode = None
         self._obs_shape = (num_envs,) + self.single_observation_space.shape
         self._act_shape = (num_envs,) + self.single_action_space.shape
@@ -221,13 +231,25 @@ class RdpgVectorEnv(VectorEnv):
         return _f32(self._env.reset(words), self._obs_shape), {}
 
     def step(self, actions):
-        obs, rew, term, trunc = self._env.step(_action_bytes(actions, self._act_shape))
+        obs, rew, term, trunc, raw, finals = self._env.step(_action_bytes(actions, self._act_shape))
+        infos: dict[str, Any] = {}
+        one = self.single_observation_space.shape
+        for i, (r, last) in enumerate(zip(raw, finals)):
+            if r is None:
+                continue
+            info = _info(r)
+            if last is not None:
+                # SAME_STEP: the ended episode's last observation and info; the env's own
+                # info is then its reset's (empty).
+                infos = self._add_info(infos, {"final_obs": _f32(last, one), "final_info": info}, i)
+            else:
+                infos = self._add_info(infos, info, i)
         return (
             _f32(obs, self._obs_shape),
             np.frombuffer(rew, dtype=np.float64).copy(),
             np.frombuffer(term, dtype=np.uint8).astype(bool),
             np.frombuffer(trunc, dtype=np.uint8).astype(bool),
-            {},
+            infos,
         )
 
 
@@ -236,52 +258,18 @@ def make_vec(env_id: str, num_envs: int, **kwargs: Any) -> RdpgVectorEnv:
     return RdpgVectorEnv(env_id.removeprefix("rdpg/"), num_envs, **kwargs)
 
 
-class Policy:
-    """A trained rdpg agent (a run directory, or a zoo entry), acting deterministically.
-
-    ``Policy.load(path, checkpoint="best")`` (a run's ``"latest"``, ``"selected"`` by
-    ``rdpg select``, or a kept agent's step; a zoo entry has its one agent); ``reset()`` at the start of each episode (recurrent agents keep
-    their state inside); ``act(obs)`` for one observation of a plain Gymnasium env of the
-    agent's ``env_id`` (a run trained with hidden observation components drops them itself);
-    ``act_batch(obs)`` for ``[n, obs_dim]`` observations of a vector env, each row with its
-    own state (``reset_one(i)`` when sub-env ``i`` starts a new episode). ``action_repeat``
-    is the number of frames each action was held for in training (1 for most agents): step
-    the env that many times with each action, as ``rdpg eval`` does.
-    """
-
-    def __init__(self, inner: _rdpg.Policy, path: Path):
-        self._p = inner
-        self.path = path
-        self.env_id: str = inner.env_id
-        self.algo: str = inner.algo
-        self.action_repeat: int = inner.action_repeat
-        one = _rdpg.Env(self.env_id)
-        self.observation_space = _spaces(*one.observation_bounds())
-        self.action_space = _spaces(*one.action_bounds())
-
-    @classmethod
-    def load(cls, path: str | Path, checkpoint: str | int = "best") -> "Policy":
-        path = Path(path)
-        return cls(_rdpg.Policy(str(path), str(checkpoint)), path)
-
-    def reset(self) -> None:
-        self._p.reset()
-
-    def reset_one(self, i: int) -> None:
-        self._p.reset_one(_count("i", i))
-
-    def act(self, obs) -> np.ndarray:
-        o = np.asarray(obs, dtype=np.float32)
-        if o.shape != self.observation_space.shape:
-            raise ValueError(f"observation of shape {o.shape}, expected {self.observation_space.shape}")
-        return _f32(self._p.act(o.tobytes()), self.action_space.shape)
-
-    def act_batch(self, obs) -> np.ndarray:
-        o = np.asarray(obs, dtype=np.float32)
-        if o.ndim != 2 or o.shape[1:] != self.observation_space.shape:
-            raise ValueError(f"observations of shape {o.shape}, expected (n, {self.observation_space.shape[0]})")
-        n = o.shape[0]
-        return _f32(self._p.act_batch(np.ascontiguousarray(o).tobytes(), n), (n,) + self.action_space.shape)
+def zoo(name: str) -> Path:
+    """The directory of zoo entry ``name`` (e.g. ``"walker-td3"``), from any working
+    directory: under ``$RDPG_ZOO`` when set, else in the ``zoo/`` of the checkout the package
+    was installed from."""
+    root = os.environ.get("RDPG_ZOO")
+    base = Path(root) if root else Path(__file__).resolve().parents[4] / "zoo"
+    path = base / name
+    if not (path / "agent").is_dir():
+        raise FileNotFoundError(
+            f"{path}: no zoo entry {name!r} (set RDPG_ZOO to the zoo directory of an rdpg checkout)"
+        )
+    return path
 
 
 def _register() -> None:
