@@ -15,7 +15,8 @@
 //! whose `best` agent is `agent/`; `rdpg plot` and `rdpg compare` through
 //! [`crate::rundir::read_as_run`].
 
-use std::path::PathBuf;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -32,15 +33,15 @@ use crate::rundir::{
 pub struct ZooArgs {
     /// Run directory written by `rdpg train`; its agent `--checkpoint` (chosen on the
     /// validation seeds) is shipped.
-    #[arg(long)]
-    run: PathBuf,
+    #[arg(long, required_unless_present = "table")]
+    run: Option<PathBuf>,
     /// The agent to ship: `best` (the best periodic evaluation) or `selected` (chosen by
     /// `rdpg select` on more validation episodes).
     #[arg(long, default_value = "best")]
     checkpoint: Which,
     /// The zoo entry to create, e.g. `zoo/walker-td3`. Must not exist.
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(long, required_unless_present = "table")]
+    out: Option<PathBuf>,
     /// Test episodes (default: the run's `train.test_episodes`), from the run's test seeds.
     #[arg(long)]
     episodes: Option<usize>,
@@ -51,18 +52,31 @@ pub struct ZooArgs {
     /// Steps of the GIF (it shows the first test episode up to here).
     #[arg(long, default_value_t = 1000)]
     gif_steps: usize,
+    /// Instead of shipping an agent: print the Markdown table of every entry of this zoo
+    /// directory, read from the entries' `summary.json` (the README's zoo table).
+    #[arg(long, value_name = "ZOO_DIR", conflicts_with_all = ["run", "out", "episodes", "command"])]
+    table: Option<PathBuf>,
 }
 
 /// `rdpg zoo`.
 pub fn run(a: &ZooArgs) -> Result<()> {
-    let run = RunDir::new(&a.run);
+    let (a_run, a_out) = match (&a.table, &a.run, &a.out) {
+        (Some(dir), ..) => {
+            print!("{}", zoo_table(dir)?);
+            return Ok(());
+        }
+        (None, Some(run), Some(out)) => (run, out),
+        // clap requires both without --table.
+        _ => bail!("--run and --out are required"),
+    };
+    let run = RunDir::new(a_run);
     if run.is_zoo_entry() {
-        bail!("{} is already a zoo entry", a.run.display());
+        bail!("{} is already a zoo entry", a_run.display());
     }
-    if a.out.exists() {
+    if a_out.exists() {
         bail!(
             "{} exists: remove it first (a zoo entry is written whole)",
-            a.out.display()
+            a_out.display()
         );
     }
     if a.episodes == Some(0) {
@@ -78,9 +92,9 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     let exp = run.experiment()?;
     let summary = run.read_summary()?;
     // Write into a temporary sibling, then rename: no half-written entry is left behind.
-    let mut tmp_name = a.out.file_name().unwrap_or_default().to_os_string();
+    let mut tmp_name = a_out.file_name().unwrap_or_default().to_os_string();
     tmp_name.push(".partial");
-    let tmp = a.out.with_file_name(tmp_name);
+    let tmp = a_out.with_file_name(tmp_name);
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
     }
@@ -96,7 +110,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         );
     };
     copy_file(&run.config(), &tmp.join("config.toml"))?;
-    copy_file(&a.run.join("evals.csv"), &tmp.join("evals.csv"))?;
+    copy_file(&a_run.join("evals.csv"), &tmp.join("evals.csv"))?;
     let agent_meta: serde_json::Value = read_json(&tmp.join("agent").join("agent.json"))?;
     let updates = agent_meta["updates"].as_u64().with_context(|| {
         format!(
@@ -117,7 +131,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     let t = &exp.train;
     let episodes = a.episodes.unwrap_or(t.test_episodes);
     let test = evaluate_policy(policy.as_mut(), t, episodes, t.test_seed)?;
-    crate::report::plot_runs(std::slice::from_ref(&a.run), &tmp.join("curves.png"))?;
+    crate::report::plot_runs(std::slice::from_ref(a_run), &tmp.join("curves.png"))?;
     let target = RenderTarget {
         gif: tmp.join("episode.gif"),
         png_dir: None,
@@ -144,7 +158,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         files.push((f.to_string(), len));
     }
     let name = if exp.name.is_empty() {
-        a.out
+        a_out
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default()
@@ -195,8 +209,76 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         teachers: summary.teachers.clone(),
     };
     write_json(&tmp.join("summary.json"), &zs)?;
-    std::fs::rename(&tmp, &a.out)
-        .with_context(|| format!("renaming {} to {}", tmp.display(), a.out.display()))?;
+    std::fs::rename(&tmp, a_out)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), a_out.display()))?;
     println!("{}", serde_json::to_string(&zs)?);
     Ok(())
+}
+
+/// The Markdown table of every entry of the zoo directory `dir` (by name), each row read from
+/// the entry's `summary.json`: agent, environment, training reward, the test (stock reward, on
+/// the test seeds), success (walkers), when the agent was taken, its run's seed and command.
+pub fn zoo_table(dir: &Path) -> Result<String> {
+    let mut entries = Vec::new();
+    for e in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+        let path = e?.path();
+        if path.join("summary.json").is_file() {
+            entries.push(path);
+        }
+    }
+    if entries.is_empty() {
+        bail!(
+            "{}: no zoo entry (a folder with summary.json)",
+            dir.display()
+        );
+    }
+    entries.sort();
+    let mut md = String::from(
+        "| agent | env | training reward | test: mean ± std (stock reward) | success | agent \
+         steps (updates) | wall | seed | reproduce |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for path in entries {
+        let z: ZooSummary = read_json(&path.join("summary.json"))?;
+        let dirname = path.file_name().unwrap_or_default().to_string_lossy();
+        let walker = z.env.starts_with("BipedalWalker");
+        let wall = z.agent.wall_seconds.map_or("—".to_string(), |s| {
+            if s < 5400.0 {
+                format!("{:.0} min", s / 60.0)
+            } else {
+                format!("{:.1} h", s / 3600.0)
+            }
+        });
+        let _ = writeln!(
+            md,
+            "| [{dirname}]({}/{dirname}) | {} | {} | **{:.1} ± {:.1}** ({} ep.) | {} | {} ({}) | \
+             {wall} | {} | `{}` |",
+            dir.display(),
+            z.env,
+            z.training_reward,
+            z.test.mean_return,
+            z.test.std_return,
+            z.test.episodes,
+            if walker {
+                format!("{:.0} %", 100.0 * z.test.success_rate)
+            } else {
+                "—".into()
+            },
+            steps_k(z.agent.steps),
+            steps_k(z.agent.updates),
+            z.training.seed,
+            z.reproduce,
+        );
+    }
+    Ok(md)
+}
+
+/// `375k`, `1.975M`: a step count as the tables write it.
+fn steps_k(n: u64) -> String {
+    if n >= 1_000_000 {
+        format!("{}M", n as f64 / 1e6)
+    } else if n >= 1000 {
+        format!("{}k", n as f64 / 1e3)
+    } else {
+        n.to_string()
+    }
 }

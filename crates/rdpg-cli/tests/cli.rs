@@ -1664,6 +1664,27 @@ fn committed_tables_regenerate_from_their_result_files() {
     assert!(checked >= 1, "no committed table");
 }
 
+/// The README's zoo table is what `rdpg zoo --table zoo` makes of the committed entries'
+/// summaries (no number in it is typed by hand).
+#[test]
+fn the_readmes_zoo_table_is_generated_from_the_zoo() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let out = ok(rdpg().current_dir(&root).args(["zoo", "--table", "zoo"]));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let start = "<!-- zoo table: rdpg zoo --table zoo -->\n";
+    let from = readme.find(start).expect("the README marks its zoo table") + start.len();
+    let to = from + readme[from..].find("<!-- end of zoo table -->").unwrap();
+    assert_eq!(
+        &readme[from..to],
+        String::from_utf8(out.stdout).unwrap(),
+        "regenerate the README's zoo table with `rdpg zoo --table zoo`"
+    );
+    fails(
+        rdpg().args(["zoo", "--table", "zoo", "--run", "runs/x"]),
+        &["cannot be used with"],
+    );
+}
+
 /// `sweeps/table1-cpu.toml --plan` resolves each row to what defines it in the paper, on the
 /// shared CPU scale; every other committed sweep file is valid.
 #[test]
