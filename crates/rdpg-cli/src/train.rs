@@ -257,8 +257,13 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         // config.toml holds the budget (set by --steps or edited): the trainer follows it,
         // and the speed setting parallel_twins.
         trainer.set_total_steps(exp.train.total_steps);
-        if let Some(agent) = &exp.agent {
-            trainer.set_parallel_twins(agent.parallel_twins)?;
+        if let (Some(agent), Some(off)) = (
+            &exp.agent,
+            trainer
+                .as_any_mut()
+                .downcast_mut::<rdpg_agents::OffPolicyTrainer>(),
+        ) {
+            off.set_parallel_twins(agent.parallel_twins)?;
         }
         // Only once the resume is accepted: a refused one leaves the run as it was.
         run.drop_agents_after(trainer.steps())?;

@@ -147,10 +147,10 @@ pub trait Trainer {
     /// Raises (or lowers) the budget in environment steps, e.g. to continue a finished run.
     fn set_total_steps(&mut self, total: u64);
 
-    /// Switches `RdpgConfig::parallel_twins` (a speed setting that changes no number) for the
-    /// rest of the run, e.g. when a resumed run gets a free core. An error for trainers
-    /// without twin critics when `on`.
-    fn set_parallel_twins(&mut self, on: bool) -> Result<()>;
+    /// The trainer as `Any`, for the settings of one algorithm (e.g.
+    /// `OffPolicyTrainer::set_parallel_twins` on a resume): `downcast_mut` to the concrete
+    /// trainer.
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any;
 
     /// The run's settings.
     fn config(&self) -> &TrainConfig;

@@ -17,7 +17,7 @@ use crate::common::checkpoint::{
     ckpt_err, read_bin, read_json, write_bin, write_json, Header, TrainerKind,
 };
 use crate::common::{evaluate_policy, Collector, EvalRecord, TrainConfig, TrainObserver, Trainer};
-use crate::error::{AgentError, Result};
+use crate::error::Result;
 
 /// PPO's own loop state, saved with a checkpoint as `loop.bin` (the collector's is
 /// `collector.bin`).
@@ -243,14 +243,8 @@ impl Trainer for PpoTrainer {
         self.cfg.total_steps = total;
     }
 
-    fn set_parallel_twins(&mut self, on: bool) -> Result<()> {
-        if on {
-            return Err(AgentError::Config {
-                field: "agent.parallel_twins",
-                reason: "PPO has no twin critics".into(),
-            });
-        }
-        Ok(())
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
     }
 
     fn config(&self) -> &TrainConfig {

@@ -359,6 +359,14 @@ impl OffPolicyTrainer {
     }
 }
 
+impl OffPolicyTrainer {
+    /// Switches `RdpgConfig::parallel_twins` (a speed setting that changes no number) for the
+    /// rest of the run, e.g. when a resumed run gets a free core.
+    pub fn set_parallel_twins(&mut self, on: bool) -> Result<()> {
+        self.agent.set_parallel_twins(on)
+    }
+}
+
 impl Trainer for OffPolicyTrainer {
     fn run(&mut self, until: u64, obs_cb: &mut dyn TrainObserver) -> Result<u64> {
         let until = until.min(self.cfg.total_steps);
@@ -497,8 +505,8 @@ impl Trainer for OffPolicyTrainer {
         self.cfg.total_steps = total;
     }
 
-    fn set_parallel_twins(&mut self, on: bool) -> Result<()> {
-        self.agent.set_parallel_twins(on)
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
     }
 
     fn config(&self) -> &TrainConfig {
