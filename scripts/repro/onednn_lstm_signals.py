@@ -5,7 +5,7 @@ makes, at the cue task's sizes) in a loop for SECONDS while a profiling timer se
 the process every PERIOD seconds of CPU time (the kernel rounds it to its tick: ~250 signals/s
 here), and prints one line if the process survives. On the 2-vCPU
 AMD EPYC (Zen 4, AVX-512) VM with torch 2.11.0 the `train` mode dies within seconds
-("corrupted size vs. prev_size while consolidating", or a segfault); see RESULTS.md for the
+("corrupted size vs. prev_size while consolidating", or a segfault); see docs/notes/results-log.md for the
 measured table. The cause is oneDNN's bug #4845 (its generated f32 GEMM kernels point rsp at
 a heap workspace, so a signal frame lands on the heap), fixed in oneDNN 3.11.2; torch 2.11.0
 ships oneDNN 3.10.2. Modes:

@@ -1,5 +1,5 @@
 //! Learning checks that CI runs (a few minutes at most). The full memory-task protocol
-//! (PendulumNoVel-v1, 3 seeds, 50k steps) is in BENCHMARKS.md.
+//! (PendulumNoVel-v1, 3 seeds) is in RESULTS.md ("PendulumNoVel-v1: `memory-rdpg`").
 //!
 //! `CueMemory-v0` shows a cue (±1) on the first step and asks for it four blank steps later:
 //! a feed-forward policy cannot beat 0 in expectation, a recurrent one can reach 1. RDPG must
