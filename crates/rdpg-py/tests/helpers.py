@@ -38,3 +38,13 @@ def eval_returns(run: Path, *args: str) -> list[float]:
         check=True, capture_output=True, text=True,
     )
     return json.loads(out.stdout)["returns"]
+
+
+def train_window_run(out: Path) -> Path:
+    """A tiny window-of-k (k = 4) recurrent run on the cue task (a few seconds)."""
+    return train(
+        "cue-rdpg.toml", out, "--steps", "1200", "--set", "train.eval_every=600",
+        "--set", "train.eval_episodes=5", "--set", "train.test_episodes=5",
+        "--set", "agent.act_window=4", "--set", "agent.scan_len=3", "--set", "agent.update_len=1",
+        "--set", "agent.burn_in_from_stored_state=false",
+    )

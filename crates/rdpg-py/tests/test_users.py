@@ -17,7 +17,7 @@ import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import rdpg
-from helpers import ROOT, ZOO, eval_returns, train
+from helpers import ROOT, ZOO, eval_returns, train_window_run
 
 TEST_SEED = 3_000_000
 
@@ -121,13 +121,7 @@ def test_predict_follows_sb3s_contract_with_an_explicit_state(name):
 @pytest.fixture(scope="module")
 def window_run(tmp_path_factory) -> Path:
     """A tiny window-of-k (k = 4) recurrent run on the cue task, trained by the rdpg binary."""
-    return train(
-        "cue-rdpg.toml", tmp_path_factory.mktemp("runs") / "window", "--steps", "1200",
-        "--set", "train.eval_every=600", "--set", "train.eval_episodes=5",
-        "--set", "train.test_episodes=5", "--set", "agent.act_window=4",
-        "--set", "agent.scan_len=3", "--set", "agent.update_len=1",
-        "--set", "agent.burn_in_from_stored_state=false",
-    )
+    return train_window_run(tmp_path_factory.mktemp("runs") / "window")
 
 
 def test_predict_carries_a_window_of_k_agents_observations(window_run):
