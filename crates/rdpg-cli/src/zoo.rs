@@ -9,7 +9,12 @@
 //!   selection never saw), when the agent was taken (steps, updates, wall time), the whole run,
 //!   the machine and the command that reproduces it;
 //! - `evals.csv` and `curves.png`: the run's evaluations and learning curves;
-//! - `episode.gif`: the agent on the first test seed.
+//! - `episode.gif`: the agent on the first test seed;
+//! - `README.md`: its model card, generated from the summary ([`model_card`]).
+//!
+//! `rdpg zoo --retest ENTRY --episodes N` tests an entry again (more test episodes, in order
+//! on one env) and rewrites its summary's test and its card; `rdpg zoo --table DIR` prints the
+//! table of a zoo's entries (the README's).
 //!
 //! `rdpg eval --run zoo/<name>` and `rdpg render --run zoo/<name>` read it as a run directory
 //! whose `best` agent is `agent/`; `rdpg plot` and `rdpg compare` through
@@ -33,14 +38,14 @@ use crate::rundir::{
 pub struct ZooArgs {
     /// Run directory written by `rdpg train`; its agent `--checkpoint` (chosen on the
     /// validation seeds) is shipped.
-    #[arg(long, required_unless_present = "table")]
+    #[arg(long, required_unless_present_any = ["table", "retest"])]
     run: Option<PathBuf>,
     /// The agent to ship: `best` (the best periodic evaluation) or `selected` (chosen by
     /// `rdpg select` on more validation episodes).
     #[arg(long, default_value = "best")]
     checkpoint: Which,
     /// The zoo entry to create, e.g. `zoo/walker-td3`. Must not exist.
-    #[arg(long, required_unless_present = "table")]
+    #[arg(long, required_unless_present_any = ["table", "retest"])]
     out: Option<PathBuf>,
     /// Test episodes (default: the run's `train.test_episodes`), from the run's test seeds.
     #[arg(long)]
@@ -54,18 +59,27 @@ pub struct ZooArgs {
     gif_steps: usize,
     /// Instead of shipping an agent: print the Markdown table of every entry of this zoo
     /// directory, read from the entries' `summary.json` (the README's zoo table).
-    #[arg(long, value_name = "ZOO_DIR", conflicts_with_all = ["run", "out", "episodes", "command"])]
+    #[arg(long, value_name = "ZOO_DIR", conflicts_with_all = ["run", "out", "episodes", "command", "retest"])]
     table: Option<PathBuf>,
+    /// Instead of shipping an agent: test this zoo entry again on `--episodes` test episodes
+    /// (default: as many as its summary has), in order on one env from its test seeds, and
+    /// rewrite its `summary.json` test and its model card (`README.md`).
+    #[arg(long, value_name = "ZOO_ENTRY", conflicts_with_all = ["run", "out", "command"])]
+    retest: Option<PathBuf>,
 }
 
 /// `rdpg zoo`.
 pub fn run(a: &ZooArgs) -> Result<()> {
-    let (a_run, a_out) = match (&a.table, &a.run, &a.out) {
+    if a.episodes == Some(0) {
+        bail!("--episodes must be at least 1");
+    }
+    let (a_run, a_out) = match (&a.table, &a.retest, &a.run, &a.out) {
         (Some(dir), ..) => {
             print!("{}", zoo_table(dir)?);
             return Ok(());
         }
-        (None, Some(run), Some(out)) => (run, out),
+        (None, Some(entry), ..) => return retest(entry, a.episodes),
+        (None, None, Some(run), Some(out)) => (run, out),
         // clap requires both without --table.
         _ => bail!("--run and --out are required"),
     };
@@ -78,9 +92,6 @@ pub fn run(a: &ZooArgs) -> Result<()> {
             "{} exists: remove it first (a zoo entry is written whole)",
             a_out.display()
         );
-    }
-    if a.episodes == Some(0) {
-        bail!("--episodes must be at least 1");
     }
     if !matches!(a.checkpoint, Which::Best | Which::Selected) {
         bail!(
@@ -175,14 +186,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         env: t.env.clone(),
         training_reward: summary.train_reward.clone(),
         evaluation_reward: summary.eval_reward.clone(),
-        test: ZooTest {
-            episodes,
-            first_seed: t.test_seed,
-            mean_return: test.mean_return,
-            std_return: test.std_return,
-            success_rate: test.success_rate,
-            returns: test.returns.clone(),
-        },
+        test: ZooTest::from_eval(&test, episodes, t.test_seed),
         agent: ZooAgent {
             steps: chosen.step,
             updates,
@@ -209,6 +213,8 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         teachers: summary.teachers.clone(),
     };
     write_json(&tmp.join("summary.json"), &zs)?;
+    std::fs::write(tmp.join("README.md"), model_card(&zs, &exp))
+        .with_context(|| format!("writing {}", tmp.join("README.md").display()))?;
     std::fs::rename(&tmp, a_out)
         .with_context(|| format!("renaming {} to {}", tmp.display(), a_out.display()))?;
     println!("{}", serde_json::to_string(&zs)?);
@@ -241,13 +247,7 @@ pub fn zoo_table(dir: &Path) -> Result<String> {
         let z: ZooSummary = read_json(&path.join("summary.json"))?;
         let dirname = path.file_name().unwrap_or_default().to_string_lossy();
         let walker = z.env.starts_with("BipedalWalker");
-        let wall = z.agent.wall_seconds.map_or("—".to_string(), |s| {
-            if s < 5400.0 {
-                format!("{:.0} min", s / 60.0)
-            } else {
-                format!("{:.1} h", s / 3600.0)
-            }
-        });
+        let wall = z.agent.wall_seconds.map_or("—".to_string(), wall);
         let _ = writeln!(
             md,
             "| [{dirname}]({}/{dirname}) | {} | {} | **{:.1} ± {:.1}** ({} ep.) | {} | {} ({}) | \
@@ -272,6 +272,15 @@ pub fn zoo_table(dir: &Path) -> Result<String> {
     Ok(md)
 }
 
+/// `62 min`, `3.1 h`: a wall-clock time as the tables write it.
+fn wall(seconds: f64) -> String {
+    if seconds < 5400.0 {
+        format!("{:.0} min", seconds / 60.0)
+    } else {
+        format!("{:.1} h", seconds / 3600.0)
+    }
+}
+
 /// `375k`, `1.975M`: a step count as the tables write it.
 fn steps_k(n: u64) -> String {
     if n >= 1_000_000 {
@@ -280,5 +289,163 @@ fn steps_k(n: u64) -> String {
         format!("{}k", n as f64 / 1e3)
     } else {
         n.to_string()
+    }
+}
+
+/// `rdpg zoo --retest ENTRY`: the entry's agent tested again on `episodes` test episodes (in
+/// order on one env, from its run's test seeds); its summary's test and its card rewritten,
+/// each whole (written aside, then renamed).
+fn retest(entry: &Path, episodes: Option<usize>) -> Result<()> {
+    let run = RunDir::new(entry);
+    if !run.is_zoo_entry() {
+        bail!(
+            "{}: not a zoo entry (`rdpg zoo --run` makes one)",
+            entry.display()
+        );
+    }
+    let mut zs: ZooSummary = read_json(&run.summary())?;
+    let (exp, mut policy) = run.policy(Which::Best)?;
+    let t = &exp.train;
+    let n = episodes.unwrap_or(zs.test.episodes);
+    let test = evaluate_policy(policy.as_mut(), t, n, t.test_seed)?;
+    zs.test = ZooTest::from_eval(&test, n, t.test_seed);
+    for (name, text) in [
+        ("summary.json", serde_json::to_string_pretty(&zs)? + "\n"),
+        ("README.md", model_card(&zs, &exp)),
+    ] {
+        let (path, part) = (entry.join(name), entry.join(format!("{name}.partial")));
+        std::fs::write(&part, text).with_context(|| format!("writing {}", part.display()))?;
+        std::fs::rename(&part, &path).with_context(|| format!("renaming to {}", path.display()))?;
+    }
+    println!(
+        "{}",
+        serde_json::json!({
+            "entry": entry.display().to_string(),
+            "episodes": n,
+            "first_seed": t.test_seed,
+            "mean_return": zs.test.mean_return,
+            "std_return": zs.test.std_return,
+            "success_rate": zs.test.success_rate,
+        })
+    );
+    Ok(())
+}
+
+/// A zoo entry's model card (`README.md`), made from its summary and config: what it is, its
+/// rewards, budget, seed and how it was chosen, its test, how to load it, where it fails.
+pub fn model_card(zs: &ZooSummary, exp: &crate::experiment::Experiment) -> String {
+    let t = &zs.test;
+    let n = t.episodes as f64;
+    let walker = zs.env.starts_with("BipedalWalker");
+    let mut md = format!(
+        "# {name}\n\n`{algo}` agent for {env}, trained on the **{train}** reward and tested on \
+         the **{eval}** reward{repeat}. Generated from `summary.json` by `rdpg zoo` (`rdpg zoo \
+         --retest zoo/{name}` tests the agent again and rewrites both).\n\n",
+        name = zs.name,
+        algo = zs.algo,
+        env = zs.env,
+        train = zs.training_reward,
+        eval = zs.evaluation_reward,
+        repeat = match exp.train.action_repeat {
+            1 => String::new(),
+            k => format!(" (each action held for {k} frames, in training and in tests)"),
+        },
+    );
+    let _ = writeln!(md, "| | |\n|---|---|");
+    let _ = writeln!(
+        md,
+        "| test | **{:.1} ± {:.1}** (standard error {:.1}) over {} test episodes from seed {}, \
+         in order on one env{} |",
+        t.mean_return,
+        t.std_return,
+        t.std_return / n.sqrt(),
+        t.episodes,
+        t.first_seed,
+        if walker {
+            format!("; success {:.0} %", 100.0 * t.success_rate)
+        } else {
+            String::new()
+        },
+    );
+    let _ = writeln!(
+        md,
+        "| the agent | taken at {} steps ({} updates) of a {}-step run, chosen on {} validation \
+         episodes (mean {:.1}), which the test never saw |",
+        steps_k(zs.agent.steps),
+        steps_k(zs.agent.updates),
+        steps_k(zs.training.steps),
+        zs.agent.validation_episodes,
+        zs.agent.validation_mean_return,
+    );
+    let _ = writeln!(
+        md,
+        "| the run | seed {}, {} of training on {} |",
+        zs.training.seed,
+        wall(zs.training.wall_seconds),
+        zs.machine
+    );
+    let _ = writeln!(md, "| reproduce | `{}` |", zs.reproduce);
+    for teacher in &zs.teachers {
+        let _ = writeln!(md, "| injection | taught by `{}` |", teacher.file);
+    }
+    let _ = writeln!(
+        md,
+        "\n```sh\nrdpg eval --run zoo/{0} --episodes {1}   # the test above\n\
+         rdpg render --run zoo/{0} --gif {0}.gif\n```\n\n```python\nimport rdpg\n\
+         policy = rdpg.Policy.load(rdpg.zoo(\"{0}\"))\nenv = policy.make_env()   # its action repeat, \
+         stock reward\n```\n",
+        zs.name, t.episodes
+    );
+    if walker && (!t.obstacles.is_empty() || t.time_limit_rate.is_some()) {
+        md.push_str("## Where it fails\n\n");
+        if let Some(r) = t.time_limit_rate {
+            let _ = writeln!(
+                md,
+                "{:.0} % of the test episodes reach the time limit without finishing (too slow \
+                 or stuck).\n",
+                100.0 * r
+            );
+        }
+        if !t.obstacles.is_empty() {
+            md.push_str("| obstacle | passed | fell at it | stuck at it |\n|---|---|---|---|\n");
+            for (kind, o) in &t.obstacles {
+                let _ = writeln!(md, "| {kind} | {} | {} | {} |", o.passed, o.fell, o.stuck);
+            }
+        }
+    }
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A walker's card gives the test with its standard error and where the agent fails, from
+    /// the summary alone.
+    #[test]
+    fn a_walkers_card_says_where_it_fails() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../zoo/hardcore-td3-paper");
+        let mut zs: ZooSummary = read_json(&root.join("summary.json")).unwrap();
+        let exp = crate::experiment::Experiment::load(&root.join("config.toml"), &[]).unwrap();
+        zs.test.time_limit_rate = Some(0.03);
+        zs.test.obstacles.insert(
+            "stump".into(),
+            rdpg_agents::common::ObstacleRecord {
+                passed: 410,
+                fell: 7,
+                stuck: 2,
+            },
+        );
+        let card = model_card(&zs, &exp);
+        for want in [
+            "**245.5 ± 52.3** (standard error 5.2) over 100 test episodes from seed 3000000",
+            "success 94 %",
+            "each action held for 3 frames",
+            "3 % of the test episodes reach the time limit",
+            "| stump | 410 | 7 | 2 |",
+            "rdpg eval --run zoo/hardcore-td3-paper --episodes 100",
+        ] {
+            assert!(card.contains(want), "{want}\n{card}");
+        }
     }
 }

@@ -730,6 +730,38 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             .arg(&zoo),
         &["zoo entry"],
     );
+    // `--retest`: the agent tested again on more episodes (what `eval` gives on them), the
+    // rest of the summary kept, the model card rewritten from it.
+    let card = std::fs::read_to_string(zoo.join("README.md")).unwrap();
+    assert!(
+        card.contains("over 4 test episodes from seed 3000000"),
+        "{card}"
+    );
+    ok(rdpg()
+        .args(["zoo", "--episodes", "6", "--retest"])
+        .arg(&zoo));
+    let again = json_file(&zoo.join("summary.json"));
+    let out = ok(rdpg().args(["eval", "--episodes", "6", "--run"]).arg(&zoo));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(again["test"]["episodes"], 6);
+    assert_eq!(again["test"]["mean_return"], line["mean_stock_return"]);
+    assert_eq!(
+        again["test"]["returns"].as_array().unwrap()[..4],
+        zs["test"]["returns"].as_array().unwrap()[..]
+    );
+    assert_eq!(
+        (&again["agent"], &again["training"]),
+        (&zs["agent"], &zs["training"])
+    );
+    let card = std::fs::read_to_string(zoo.join("README.md")).unwrap();
+    assert!(
+        card.contains("over 6 test episodes from seed 3000000"),
+        "{card}"
+    );
+    fails(
+        rdpg().args(["zoo", "--retest"]).arg(&one),
+        &["not a zoo entry"],
+    );
 }
 
 /// `run.keep_agents_every` keeps weights-only agents without changing the run; `rdpg select`

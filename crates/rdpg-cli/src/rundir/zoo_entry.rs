@@ -1,7 +1,11 @@
 //! A zoo entry's own summary (`rdpg zoo` writes it) and the entry read in a run's terms, so
 //! that plots, comparisons and records read a zoo entry as they read a run.
 
+use std::collections::BTreeMap;
+
 use anyhow::{bail, Result};
+use rdpg_agents::common::ObstacleRecord;
+use rdpg_agents::EvalRecord;
 use serde::{Deserialize, Serialize};
 
 use super::{read_json, EvalSummary, Metric, RunDir, Summary, TeacherSummary, TestSummary};
@@ -54,6 +58,30 @@ pub struct ZooTest {
     pub success_rate: f64,
     /// Every episode's stock return.
     pub returns: Vec<f64>,
+    /// Share of episodes cut by the time limit (neither finished nor fell); absent in entries
+    /// tested before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_limit_rate: Option<f64>,
+    /// Walkers: how the test episodes fared at each kind of obstacle (and `none`: episodes
+    /// that ended away from any); absent in entries tested before it was recorded.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub obstacles: BTreeMap<String, ObstacleRecord>,
+}
+
+impl ZooTest {
+    /// The test of `episodes` episodes from `first_seed`, as `evaluate_policy` gave it.
+    pub fn from_eval(test: &EvalRecord, episodes: usize, first_seed: u64) -> Self {
+        Self {
+            episodes,
+            first_seed,
+            mean_return: test.mean_return,
+            std_return: test.std_return,
+            success_rate: test.success_rate,
+            returns: test.returns.clone(),
+            time_limit_rate: Some(test.time_limit_rate),
+            obstacles: test.obstacles.clone(),
+        }
+    }
 }
 
 /// The shipped agent in [`ZooSummary`].
