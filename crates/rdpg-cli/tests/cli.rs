@@ -1646,6 +1646,29 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         assert_eq!(r["steps"], r["budget"], "{r}");
         assert_eq!(r["commits"].as_array().unwrap().len(), 1, "{r}");
     }
+    // A finished trial whose run directory is gone (another machine) and whose result file
+    // is committed is not run again, and its result and ledger line stay as they were.
+    let kept = std::fs::read(dir.join("results/s/rdpg-s1.json")).unwrap();
+    std::fs::remove_dir_all(trials.join("rdpg-s1")).unwrap();
+    let out = ok(&mut sweep());
+    let last = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .last()
+        .unwrap()
+        .to_string();
+    let end: Value = serde_json::from_str(&last).unwrap();
+    assert_eq!(end["finished"].as_u64(), Some(4), "{last}");
+    assert!(!trials.join("rdpg-s1").exists(), "a finished trial ran again");
+    assert_eq!(std::fs::read(dir.join("results/s/rdpg-s1.json")).unwrap(), kept);
+    collect();
+    let ledger = json_file(&dir.join("results/s/ledger.json"));
+    assert_eq!(
+        (
+            ledger["trials"][1]["status"].as_str(),
+            ledger["trials"][1]["restarts"].as_u64()
+        ),
+        (Some("finished"), Some(0))
+    );
     std::fs::remove_dir_all(trials.join("rdpg-s0")).unwrap();
     std::fs::remove_file(dir.join("results/s/rdpg-s0.json")).unwrap();
     collect();

@@ -457,6 +457,7 @@ pub fn run(a: &SweepArgs) -> Result<()> {
                 "seed": t.seed,
                 "steps": t.steps,
                 "run_dir": abs(&t.run_dir)?,
+                "result": abs(&sweep.results.join(format!("{}.json", t.id)))?,
                 "base": abs(&t.base)?,
                 "set": t.set,
             }))

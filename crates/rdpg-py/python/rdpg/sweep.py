@@ -30,13 +30,21 @@ import time
 
 
 def _finished(trial: dict) -> dict | None:
-    """The trial's summary when it reached its budget and ran its test, else None."""
+    """The trial's summary when it reached its budget and ran its test, else None: from its
+    run directory, or, where that is gone (another machine), from its committed result file
+    (``results/<sweep>/<trial>.json``), so a finished trial never runs again."""
     try:
         with open(os.path.join(trial["run_dir"], "summary.json")) as f:
             summary = json.load(f)
     except (OSError, ValueError):
-        return None
-    if summary.get("steps", 0) >= trial["steps"] and summary.get("test_eval"):
+        summary = None
+    if summary is None and not os.path.exists(trial["run_dir"]) and trial.get("result"):
+        try:
+            with open(trial["result"]) as f:
+                summary = json.load(f)["summary"]
+        except (OSError, ValueError, KeyError, TypeError):
+            summary = None
+    if summary and summary.get("steps", 0) >= trial["steps"] and summary.get("test_eval"):
         return summary
     return None
 
