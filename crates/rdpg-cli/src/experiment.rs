@@ -237,7 +237,9 @@ fn memory_estimate(exp: &Experiment) -> Result<f64> {
                 .map_or(0.0, |i| i.max_fraction);
             let per_step = 4.0 * (obs + act + 2.0 + state);
             let replay = off_policy.replay_capacity as f64 * (1.0 + injected) * per_step;
-            let width = (agent.embed_dim() + agent.actor_hidden + agent.critic_hidden) as f64;
+            let heads: usize = agent.actor_head.iter().chain(&agent.critic_head).sum();
+            let width =
+                (agent.embed_dim() + agent.actor_hidden + agent.critic_hidden + heads) as f64;
             let steps = agent.scan_len as f64 + agent.opt_len as f64 + 1.0;
             // Inputs, gates and saved activations of the online and target networks.
             let batch = agent.batch_size as f64 * steps * 4.0 * (obs + act + 16.0 * width) * 4.0;

@@ -1658,8 +1658,14 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         .to_string();
     let end: Value = serde_json::from_str(&last).unwrap();
     assert_eq!(end["finished"].as_u64(), Some(4), "{last}");
-    assert!(!trials.join("rdpg-s1").exists(), "a finished trial ran again");
-    assert_eq!(std::fs::read(dir.join("results/s/rdpg-s1.json")).unwrap(), kept);
+    assert!(
+        !trials.join("rdpg-s1").exists(),
+        "a finished trial ran again"
+    );
+    assert_eq!(
+        std::fs::read(dir.join("results/s/rdpg-s1.json")).unwrap(),
+        kept
+    );
     collect();
     let ledger = json_file(&dir.join("results/s/ledger.json"));
     assert_eq!(

@@ -139,6 +139,16 @@ pub struct RdpgConfig {
     /// observation at the trunk's input, as in TD3's and Stable-Baselines3's critics (needs an
     /// MLP trunk).
     pub critic_action_fc: usize,
+    /// Hidden layers (FC + ReLU) between the actor's core and its output layer; empty (the
+    /// default, the paper's): the output layer reads the core directly.
+    pub actor_head: Vec<usize>,
+    /// Hidden layers (FC + ReLU) between each critic's core and its output layer; empty by
+    /// default.
+    pub critic_head: Vec<usize>,
+    /// The head (hidden layers or output layer) reads the core's input beside its output,
+    /// `[x_t, y_t]`: a skip connection around the LSTM, so a recurrent network contains its
+    /// feed-forward twin (trunk -> head) and the memory adds features to it. Default `false`.
+    pub core_skip: bool,
     /// Discount factor gamma.
     pub gamma: f64,
     /// Adam learning rate of the actor.
@@ -248,6 +258,9 @@ impl Default for RdpgConfig {
             actor_hidden: 256,
             critic_hidden: 320,
             critic_action_fc: 64,
+            actor_head: Vec::new(),
+            critic_head: Vec::new(),
+            core_skip: false,
             gamma: 0.99,
             lr_actor: 1e-3,
             lr_critic: 1e-3,
@@ -364,6 +377,17 @@ impl RdpgConfig {
         }
         width("actor_hidden", self.actor_hidden)?;
         width("critic_hidden", self.critic_hidden)?;
+        for (field, head) in [
+            ("actor_head", &self.actor_head),
+            ("critic_head", &self.critic_head),
+        ] {
+            if head.len() > 64 || head.iter().any(|h| !(1..=MAX_WIDTH).contains(h)) {
+                return Err(bad(
+                    field,
+                    format!("must list at most 64 widths from 1 to {MAX_WIDTH}"),
+                ));
+            }
+        }
         if self.critic_action_fc > MAX_WIDTH {
             return Err(bad(
                 "critic_action_fc",
@@ -572,15 +596,25 @@ impl RdpgConfig {
             true => 4.0 * h * (e + h + 2.0),
             false => linear(e, h),
         };
+        // The head's layers from the core's output (and input, with `core_skip`) to `out`.
+        let head = |x: f64, y: f64, hidden: &[usize], out: f64| {
+            let mut n = 0.0;
+            let mut i = y + if self.core_skip { x } else { 0.0 };
+            for &h in hidden {
+                n += linear(i, h as f64);
+                i = h as f64;
+            }
+            n + linear(i, out)
+        };
         let e = self.embed_dim() as f64;
-        let actor =
-            trunk(d) + core(e, self.actor_hidden as f64) + linear(self.actor_hidden as f64, a);
+        let (ha, hc) = (self.actor_hidden as f64, self.critic_hidden as f64);
+        let actor = trunk(d) + core(e, ha) + head(e, ha, &self.actor_head, a);
         let af = self.critic_action_fc as f64;
         let critic = match self.critic_action_fc {
             0 => trunk(d + a),
             _ => trunk(d) + linear(a, af),
-        } + core(e + af, self.critic_hidden as f64)
-            + linear(self.critic_hidden as f64, 1.0);
+        } + core(e + af, hc)
+            + head(e + af, hc, &self.critic_head, 1.0);
         let critics = if self.twin_critic { 2.0 } else { 1.0 };
         let copies = if self.tau > 0.0 { 2.0 } else { 1.0 };
         copies * (actor + critics * critic)

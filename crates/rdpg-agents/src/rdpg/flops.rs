@@ -49,7 +49,7 @@ impl PhaseFlops {
 struct Net {
     trunk: Vec<(i64, i64)>,
     core: (i64, i64),
-    head: (i64, i64),
+    head: Vec<(i64, i64)>,
 }
 
 fn flop(shapes: &[(i64, i64)]) -> f64 {
@@ -64,7 +64,7 @@ impl Net {
         flop(&[self.core])
     }
     fn head(&self) -> f64 {
-        flop(&[self.head])
+        flop(&self.head)
     }
     fn all(&self) -> f64 {
         self.trunk() + self.core() + self.head()
@@ -114,10 +114,24 @@ fn nets(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> (Net, Net) {
             (input, h)
         }
     };
+    // The head's layers from the core's output (and input, with `core_skip`) to `out`.
+    let head = |x: i64, y: usize, hidden: &[usize], out: i64| {
+        let mut k = y as i64 + if cfg.core_skip { x } else { 0 };
+        let mut shapes: Vec<(i64, i64)> = hidden
+            .iter()
+            .map(|&h| {
+                let s = (k, h as i64);
+                k = h as i64;
+                s
+            })
+            .collect();
+        shapes.push((k, out));
+        shapes
+    };
     let actor = Net {
         trunk: trunk_shapes(cfg, d),
         core: core(e, cfg.actor_hidden),
-        head: (cfg.actor_hidden as i64, a),
+        head: head(e, cfg.actor_hidden, &cfg.actor_head, a),
     };
     let af = cfg.critic_action_fc as i64;
     let mut trunk = trunk_shapes(cfg, if af == 0 { d + a } else { d });
@@ -127,7 +141,7 @@ fn nets(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> (Net, Net) {
     let critic = Net {
         trunk,
         core: core(e + af, cfg.critic_hidden),
-        head: (cfg.critic_hidden as i64, 1),
+        head: head(e + af, cfg.critic_hidden, &cfg.critic_head, 1),
     };
     (actor, critic)
 }
@@ -227,7 +241,7 @@ pub fn gemm_reference(
         } else {
             shapes.push((rows, k, n));
         }
-        shapes.push((rows, net.head.0, net.head.1));
+        shapes.extend(net.head.iter().map(|&(k, n)| (rows, k, n)));
     }
     let opts = (Kind::Float, Device::Cpu);
     let pairs: Vec<(Tensor, Tensor)> = shapes

@@ -9,6 +9,10 @@
 //!   -> linear Q. With `critic_action_fc = 0` (MLP trunks only) there is no action branch: the
 //!   raw action is concatenated with the observation at the trunk's input, as in the critics of
 //!   TD3 (Fujimoto et al. 2018) and Stable-Baselines3.
+//! * **Head options** (the project's, not the paper's): `actor_head` / `critic_head` put hidden
+//!   FC + ReLU layers between the core and the output layer, and `core_skip` feeds the head the
+//!   core's input beside its output, `[x_t, y_t]`, so that a recurrent network contains its
+//!   feed-forward twin (trunk -> head).
 //! * **Feed-forward** variants (DDPG, paper Table I): the LSTM replaced by FC + ReLU of the same
 //!   width; their recurrent state is empty (zero-width) and passes through unchanged.
 //!
@@ -149,6 +153,40 @@ impl TrunkNet {
     }
 }
 
+/// The head's input: the core's output `y [.., H]`, after its input `x [.., E]` with
+/// `core_skip` (`[.., E + H]`).
+fn head_input(skip: bool, x: &Tensor, y: &Tensor) -> Tensor {
+    if skip {
+        Tensor::cat(&[x, y], -1)
+    } else {
+        y.shallow_clone()
+    }
+}
+
+/// A network's head under `p`: hidden layers `head_mlp.fc{i}` (FC + ReLU, `hidden` widths)
+/// from the core's output of width `h` (with `skip`, `e + h`: its input too), then the output
+/// layer `head` to `out`.
+fn head_layers(
+    p: &nn::Path,
+    skip: bool,
+    e: i64,
+    h: i64,
+    hidden: &[usize],
+    out: i64,
+) -> (Mlp, nn::Linear) {
+    let input = h + if skip { e } else { 0 };
+    let mlp = Mlp::new(
+        &(p / "head_mlp"),
+        input as usize,
+        hidden,
+        "fc",
+        None,
+        Activation::Relu,
+    );
+    let last = hidden.last().map_or(input, |&w| w as i64);
+    (mlp, head_linear(p / "head", last, out))
+}
+
 fn head_linear(p: nn::Path, in_dim: i64, out_dim: i64) -> nn::Linear {
     let init = nn::Init::Uniform {
         lo: -HEAD_INIT,
@@ -173,6 +211,10 @@ pub struct Actor {
     pub trunk: TrunkNet,
     /// LSTM (or FC) core.
     pub core: Core,
+    /// Hidden layers between the core and the output layer (`actor_head`; none by default).
+    pub head_mlp: Mlp,
+    /// Whether the head reads the core's input beside its output (`core_skip`).
+    pub skip: bool,
     /// Output layer (before tanh).
     pub head: nn::Linear,
 }
@@ -183,6 +225,8 @@ impl Actor {
         Self {
             trunk: self.trunk.shallow_clone(),
             core: self.core.shallow_clone(),
+            head_mlp: self.head_mlp.shallow_clone(),
+            skip: self.skip,
             head: linear_handle(&self.head),
         }
     }
@@ -193,8 +237,14 @@ impl Actor {
         let e = cfg.embed_dim() as i64;
         let h = cfg.actor_hidden as i64;
         let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
-        let head = head_linear(p / "head", h, act_dim);
-        Self { trunk, core, head }
+        let (head_mlp, head) = head_layers(p, cfg.core_skip, e, h, &cfg.actor_head, act_dim);
+        Self {
+            trunk,
+            core,
+            head_mlp,
+            skip: cfg.core_skip,
+            head,
+        }
     }
 
     /// Core input for a sequence: `obs [B, T, D]` -> `[B, T, E]`.
@@ -202,21 +252,26 @@ impl Actor {
         self.trunk.forward_seq(obs)
     }
 
-    /// Core output -> action: `[.., H]` -> `[.., A]` in `(-1, 1)`.
-    pub fn head(&self, y: &Tensor) -> Tensor {
-        self.head.forward(y).tanh()
+    /// Core input and output -> action: `x [.., E]`, `y [.., H]` -> `[.., A]` in `(-1, 1)`
+    /// (`x` is read only with `core_skip`).
+    pub fn head(&self, x: &Tensor, y: &Tensor) -> Tensor {
+        self.head
+            .forward(&self.head_mlp.forward(&head_input(self.skip, x, y)))
+            .tanh()
     }
 
     /// Actions along a sequence: `obs [B, T, D]` from `h0` -> (`[B, T, A]`, final state).
     pub fn forward_seq(&self, obs: &Tensor, h0: &RecState) -> (Tensor, RecState) {
-        let (y, s) = self.core.seq(&self.input_seq(obs), h0);
-        (self.head(&y), s)
+        let x = self.input_seq(obs);
+        let (y, s) = self.core.seq(&x, h0);
+        (self.head(&x, &y), s)
     }
 
     /// One step for a batch of environments: `obs [B, D]` -> (`[B, A]`, next state).
     pub fn step(&self, obs: &Tensor, s: &RecState) -> (Tensor, RecState) {
-        let (y, s) = self.core.step(&self.trunk.forward(obs), s);
-        (self.head(&y), s)
+        let x = self.trunk.forward(obs);
+        let (y, s) = self.core.step(&x, s);
+        (self.head(&x, &y), s)
     }
 }
 
@@ -230,7 +285,11 @@ pub struct Critic {
     pub act_fc: Option<nn::Linear>,
     /// LSTM (or FC) core.
     pub core: Core,
-    /// Output layer `H -> 1`.
+    /// Hidden layers between the core and the output layer (`critic_head`; none by default).
+    pub head_mlp: Mlp,
+    /// Whether the head reads the core's input beside its output (`core_skip`).
+    pub skip: bool,
+    /// Output layer `H -> 1` (from the last head layer, or `E + H` with `core_skip`).
     pub head: nn::Linear,
 }
 
@@ -242,6 +301,8 @@ impl Critic {
             trunk: self.trunk.shallow_clone(),
             act_fc: self.act_fc.as_ref().map(linear_handle),
             core: self.core.shallow_clone(),
+            head_mlp: self.head_mlp.shallow_clone(),
+            skip: self.skip,
             head: linear_handle(&self.head),
         }
     }
@@ -258,11 +319,13 @@ impl Critic {
         let e = cfg.embed_dim() as i64 + af;
         let h = cfg.critic_hidden as i64;
         let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
-        let head = head_linear(p / "head", h, 1);
+        let (head_mlp, head) = head_layers(p, cfg.core_skip, e, h, &cfg.critic_head, 1);
         Self {
             trunk,
             act_fc,
             core,
+            head_mlp,
+            skip: cfg.core_skip,
             head,
         }
     }
@@ -280,16 +343,20 @@ impl Critic {
         }
     }
 
-    /// Core output -> Q: `[.., H]` -> `[..]`.
-    pub fn head(&self, y: &Tensor) -> Tensor {
-        self.head.forward(y).squeeze_dim(-1)
+    /// Core input and output -> Q: `x [.., E]`, `y [.., H]` -> `[..]` (`x` is read only with
+    /// `core_skip`).
+    pub fn head(&self, x: &Tensor, y: &Tensor) -> Tensor {
+        self.head
+            .forward(&self.head_mlp.forward(&head_input(self.skip, x, y)))
+            .squeeze_dim(-1)
     }
 
     /// Q along a sequence: `obs [B, T, D]`, `act [B, T, A]` from `h0` -> (`[B, T]`, final
     /// state).
     pub fn forward_seq(&self, obs: &Tensor, act: &Tensor, h0: &RecState) -> (Tensor, RecState) {
-        let (y, s) = self.core.seq(&self.input_seq(obs, act), h0);
-        (self.head(&y), s)
+        let x = self.input_seq(obs, act);
+        let (y, s) = self.core.seq(&x, h0);
+        (self.head(&x, &y), s)
     }
 
     /// Core input for single steps: `obs [N, D]`, `act [N, A]` -> `[N, E + 64]` (`[N, E]`
@@ -307,8 +374,9 @@ impl Critic {
 
     /// One step: `obs [B, D]`, `act [B, A]` -> (`[B]`, next state).
     pub fn step(&self, obs: &Tensor, act: &Tensor, s: &RecState) -> (Tensor, RecState) {
-        let (y, s) = self.core.step(&self.input(obs, act), s);
-        (self.head(&y), s)
+        let x = self.input(obs, act);
+        let (y, s) = self.core.step(&x, s);
+        (self.head(&x, &y), s)
     }
 }
 

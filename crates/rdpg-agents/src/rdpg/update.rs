@@ -345,7 +345,7 @@ impl RdpgAgent {
         } else {
             (self.actor.core.seq(&xa, sc.actor()).0, None)
         };
-        let a_tail = (self.actor.head(&ya) * p.tail_onehot.unsqueeze(-1))
+        let a_tail = (self.actor.head(&xa, &ya) * p.tail_onehot.unsqueeze(-1))
             .sum_dim_intlist(1, false, self.kind);
         (states, a_tail)
     }
@@ -745,8 +745,9 @@ pub(super) fn actor_loss(
                 h: h.reshape([1, n * l, ha]),
                 c: c.reshape([1, n * l, ha]),
             };
-            let (y, _) = actor.core.step(&actor.trunk.forward(&obs_flat), &st);
-            actor.head(&y) // [N*l, A]
+            let x = actor.trunk.forward(&obs_flat); // [N*l, E]
+            let (y, _) = actor.core.step(&x, &st);
+            actor.head(&x, &y) // [N*l, A]
         }
         ActorInput::Bptt { h0 } => {
             let (a, _) = actor.forward_seq(&obs, h0); // [N, l, A]
