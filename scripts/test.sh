@@ -11,6 +11,8 @@ source scripts/setup/deps.sh
 cargo fmt --all -- --check
 # No oversized rooms: a source file past 600 code lines is split (ARCHITECTURE.md).
 scripts/room_sizes.sh
+# No import circle between source files (ARCHITECTURE.md).
+python3 scripts/import_cycles.py
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace
 # The Python package against Gymnasium (uses the rdpg binary the tests above built).

@@ -83,11 +83,11 @@ struct ForkUse {
 
 impl TrainObserver for ForkUse {
     fn on_update(&mut self, _step: u64, s: &UpdateStats) {
-        if let Some(used) = s.fork_term {
+        if let Some(&used) = s.extra.get("fork_share") {
             self.actor_updates += 1;
-            self.with_term += u64::from(used);
+            self.with_term += used as u64;
         }
-        self.model_loss.extend(s.model_loss);
+        self.model_loss.extend(s.extra.get("model_loss"));
     }
 }
 

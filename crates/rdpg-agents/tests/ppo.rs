@@ -62,7 +62,7 @@ impl TrainObserver for Recorder {
         // Wall time is the one field that differs between identical runs.
         let stats = UpdateStats {
             seconds: 0.0,
-            ..*stats
+            ..stats.clone()
         };
         self.events.push(format!("{step} {stats:?}"));
         self.updates.push((step, stats));

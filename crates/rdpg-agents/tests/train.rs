@@ -284,7 +284,7 @@ fn checkpoints_of_another_format_or_trainer_are_refused_naming_them() {
         rdpg_agents::PpoTrainer::load(&d).err().unwrap().to_string(),
     ] {
         assert!(
-            err.contains("format 1") && err.contains("format 3"),
+            err.contains("format 1") && err.contains("formats 3 to 4"),
             "{err}"
         );
     }
@@ -302,9 +302,66 @@ fn checkpoints_of_another_format_or_trainer_are_refused_naming_them() {
     .unwrap();
     let err = rdpg_agents::load_trainer(&d).err().unwrap().to_string();
     assert!(
-        err.contains("format 2") && err.contains("format 3"),
+        err.contains("format 2") && err.contains("formats 3 to 4"),
         "{err}"
     );
+}
+
+/// A checkpoint of trainer format 3 (its `replay.bin` ending in an episode in progress that
+/// the trainer never used, `None`) resumes like the same checkpoint in format 4; one whose
+/// replay holds such an episode is refused, naming the file.
+#[test]
+fn a_format_3_checkpoint_resumes_and_one_with_an_episode_in_progress_is_refused() {
+    let (train, off, agent) = small();
+    let mut t = OffPolicyTrainer::new(train, off, agent).unwrap();
+    t.run(333, &mut Quiet).unwrap();
+    let new = tmp("format4");
+    t.save(&new).unwrap();
+    let as_format_3 = |tag: &str, open: Option<rdpg_core::Episode>| -> PathBuf {
+        let d = tmp(tag);
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        copy_dir(&new, &d);
+        std::fs::write(
+            d.join("checkpoint.json"),
+            r#"{"format": 3, "trainer": "off_policy"}"#,
+        )
+        .unwrap();
+        let mut replay = std::fs::read(d.join("replay.bin")).unwrap();
+        replay.extend(bincode::serialize(&open).unwrap());
+        std::fs::write(d.join("replay.bin"), replay).unwrap();
+        std::fs::remove_file(d.join("manifest.json")).unwrap();
+        rdpg_agents::common::checkpoint::seal(&d).unwrap();
+        d
+    };
+    let old = as_format_3("format3", None);
+    let mut a = OffPolicyTrainer::load(&new).unwrap();
+    let mut b = OffPolicyTrainer::load(&old).unwrap();
+    a.run(500, &mut Quiet).unwrap();
+    b.run(500, &mut Quiet).unwrap();
+    assert!(a.agent().updates() > 0);
+    assert_eq!(a.agent().weights(), b.agent().weights());
+    let episode = a.replay().episodes()[0].clone();
+    let bad = as_format_3("format3-open", Some(episode));
+    let err = OffPolicyTrainer::load(&bad).err().unwrap().to_string();
+    assert!(
+        err.contains("replay.bin") && err.contains("in progress"),
+        "{err}"
+    );
+}
+
+/// Copies the files of checkpoint `from` (nested directories included) into `to`.
+fn copy_dir(from: &Path, to: &Path) {
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dest = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            std::fs::create_dir_all(&dest).unwrap();
+            copy_dir(&e.path(), &dest);
+        } else {
+            std::fs::copy(e.path(), dest).unwrap();
+        }
+    }
 }
 
 /// The algorithm-agnostic surface: `new_trainer` and `load_trainer` give a `Box<dyn Trainer>`

@@ -262,7 +262,7 @@ fn memory_estimate(exp: &Experiment) -> Result<f64> {
 /// Refuses a run whose [`memory_estimate`] exceeds the memory this machine has available.
 pub fn check_memory(exp: &Experiment) -> Result<()> {
     let need = memory_estimate(exp)?;
-    let available = crate::rundir::meminfo_bytes("MemAvailable");
+    let available = crate::rundir::machine::meminfo_bytes("MemAvailable");
     let gib = |b: f64| b / (1u64 << 30) as f64;
     if let Some(avail) = available.filter(|&a| need > a as f64) {
         bail!(

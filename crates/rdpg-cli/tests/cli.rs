@@ -1542,13 +1542,13 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
             assert_eq!(&events(t), b, "{t} ran after {stopped} was stopped");
         }
     }
-    let out = ok(&mut sweep());
-    let last = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .last()
-        .unwrap()
-        .to_string();
-    let end: Value = serde_json::from_str(&last).unwrap();
+    // A finished sweep's last line counts its trials and the finished ones.
+    let finished_sweep = || -> Value {
+        let out = ok(&mut sweep());
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        serde_json::from_str(text.lines().last().unwrap()).unwrap()
+    };
+    let end = finished_sweep();
     assert_eq!(
         (end["trials"].as_u64(), end["finished"].as_u64()),
         (Some(4), Some(4))
@@ -1650,14 +1650,8 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
     // is committed is not run again, and its result and ledger line stay as they were.
     let kept = std::fs::read(dir.join("results/s/rdpg-s1.json")).unwrap();
     std::fs::remove_dir_all(trials.join("rdpg-s1")).unwrap();
-    let out = ok(&mut sweep());
-    let last = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .last()
-        .unwrap()
-        .to_string();
-    let end: Value = serde_json::from_str(&last).unwrap();
-    assert_eq!(end["finished"].as_u64(), Some(4), "{last}");
+    let end = finished_sweep();
+    assert_eq!(end["finished"].as_u64(), Some(4), "{end}");
     assert!(
         !trials.join("rdpg-s1").exists(),
         "a finished trial ran again"

@@ -13,8 +13,10 @@
 //! acting-time recurrent states (the state *before* step `t`), the `terminated` / `truncated`
 //! flags of its last transition and whether it was injected (teacher experience).
 //!
-//! Agent and injected episodes are kept in two FIFO queues with separate budgets: the agent's
-//! own episodes (and the open one) share `capacity`, evicted oldest first; injected (teacher)
+//! Episodes enter whole, when they end ([`EpisodicReplay::add_episode`]; the trainer keeps each
+//! episode in progress beside the buffer). Agent and injected episodes are kept in two FIFO
+//! queues with separate budgets: the agent's own episodes share `capacity`, evicted oldest
+//! first; injected (teacher)
 //! episodes have their own cap, `floor(max_injected_fraction * capacity)` transitions, and are
 //! evicted only by newer injected episodes. So teacher experience loaded at the start of a run
 //! stays for as long as the run samples from it, however much the agent collects. A global
@@ -50,7 +52,7 @@ fn default_max_injected_fraction() -> f64 {
 /// Sizes and limits of an [`EpisodicReplay`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ReplayConfig {
-    /// Capacity in transitions (closed episodes plus the open one).
+    /// Capacity in transitions of the agent's own episodes.
     pub capacity: usize,
     /// Observation size.
     pub obs_dim: usize,
@@ -147,7 +149,7 @@ pub enum ReplayError {
     Corrupt(String),
 }
 
-/// One whole episode (or the open one), stored flat.
+/// One whole episode, stored flat.
 ///
 /// With `n = rewards.len()` transitions: `obs` holds `(n + 1) * obs_dim` values (the final
 /// `next_obs` last), `actions` `n * act_dim`, `states` either `n * state_dim` values (the
@@ -208,7 +210,7 @@ impl Episode {
     }
 }
 
-/// A closed episode with its insertion sequence number.
+/// An episode with its insertion sequence number.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Stored {
     seq: u64,
@@ -222,7 +224,39 @@ struct Store {
     next_seq: u64,
     agent: VecDeque<Stored>,
     injected: VecDeque<Stored>,
+}
+
+/// A buffer as trainer checkpoint format 3 wrote it (`replay.bin`): the same, followed by an
+/// episode in progress that the trainer never used (always `None` in the files it wrote).
+/// Read with bincode and turned into a buffer with `EpisodicReplay::try_from`, which refuses
+/// one that holds an episode in progress.
+#[derive(Debug, Deserialize)]
+pub struct ReplayFormat3 {
+    config: ReplayConfig,
+    next_seq: u64,
+    agent: VecDeque<Stored>,
+    injected: VecDeque<Stored>,
     open: Option<Episode>,
+}
+
+impl TryFrom<ReplayFormat3> for EpisodicReplay {
+    type Error = ReplayError;
+
+    fn try_from(f: ReplayFormat3) -> Result<Self, ReplayError> {
+        if f.open.is_some() {
+            return Err(ReplayError::Corrupt(
+                "a format-3 buffer holding an episode in progress, which this build does not \
+                 keep"
+                    .into(),
+            ));
+        }
+        Self::from_store(Store {
+            config: f.config,
+            next_seq: f.next_seq,
+            agent: f.agent,
+            injected: f.injected,
+        })
+    }
 }
 
 /// Number of window starts of an episode of `len` transitions: one per transition, whatever
@@ -298,7 +332,7 @@ struct Index {
 /// Episodic replay buffer with whole-episode FIFO eviction, uniform window sampling and
 /// experience injection.
 ///
-/// Serialises (serde) to its configuration, episodes and open episode; the sampling cache
+/// Serialises (serde) to its configuration and episodes; the sampling cache
 /// is rebuilt on demand, so a restored buffer draws exactly the same windows from the same
 /// generator state.
 #[derive(Debug)]
@@ -321,7 +355,7 @@ impl Clone for EpisodicReplay {
 }
 
 impl PartialEq for EpisodicReplay {
-    /// Same configuration, episodes (with their order) and open episode.
+    /// Same configuration and episodes (with their order).
     fn eq(&self, other: &Self) -> bool {
         self.store == other.store
     }
@@ -350,7 +384,6 @@ impl EpisodicReplay {
                 next_seq: 0,
                 agent: VecDeque::new(),
                 injected: VecDeque::new(),
-                open: None,
             },
             agent_transitions: 0,
             injected_transitions: 0,
@@ -379,12 +412,6 @@ impl EpisodicReplay {
                 totals[p] += s.episode.len();
             }
         }
-        if let Some(open) = &store.open {
-            open.check(&store.config)?;
-            if open.injected || open.terminated || open.truncated {
-                return corrupt("the open episode is flagged closed or injected".into());
-            }
-        }
         Ok(Self {
             store,
             agent_transitions: totals[0],
@@ -398,15 +425,14 @@ impl EpisodicReplay {
         &self.store.config
     }
 
-    /// Transitions held: closed episodes (agent and injected) plus the open one.
+    /// Transitions held, in the agent's and injected episodes.
     pub fn len_transitions(&self) -> usize {
-        self.agent_transitions + self.injected_transitions + self.open_len()
+        self.agent_transitions + self.injected_transitions
     }
 
-    /// The agent's own transitions (closed episodes plus the open one): what `capacity`
-    /// bounds.
+    /// The agent's own transitions: what `capacity` bounds.
     pub fn agent_len_transitions(&self) -> usize {
-        self.agent_transitions + self.open_len()
+        self.agent_transitions
     }
 
     /// True when the buffer holds no transition at all.
@@ -419,22 +445,17 @@ impl EpisodicReplay {
         self.injected_transitions
     }
 
-    /// Transitions of the open (not yet sampleable) episode.
-    pub fn open_len(&self) -> usize {
-        self.store.open.as_ref().map_or(0, Episode::len)
-    }
-
-    /// Closed (sampleable) episodes, agent and injected.
+    /// Episodes held, agent and injected.
     pub fn num_episodes(&self) -> usize {
         self.store.agent.len() + self.store.injected.len()
     }
 
-    /// Closed injected episodes.
+    /// Injected episodes held.
     pub fn num_injected_episodes(&self) -> usize {
         self.store.injected.len()
     }
 
-    /// The closed episodes, oldest first (agent and injected interleaved by insertion).
+    /// The episodes, oldest first (agent and injected interleaved by insertion).
     pub fn episodes(&self) -> Vec<&Episode> {
         let mut all: Vec<&Stored> = self
             .store
@@ -446,22 +467,16 @@ impl EpisodicReplay {
         all.into_iter().map(|s| &s.episode).collect()
     }
 
-    /// The open episode, if a step has been pushed since the last episode end.
-    pub fn open_episode(&self) -> Option<&Episode> {
-        self.store.open.as_ref()
-    }
-
-    /// Drops every episode, the open one included.
+    /// Drops every episode.
     pub fn clear(&mut self) {
         self.store.agent.clear();
         self.store.injected.clear();
-        self.store.open = None;
         self.agent_transitions = 0;
         self.injected_transitions = 0;
         *self.index_lock() = Index::default();
     }
 
-    /// Number of sampleable positions for `opt` optimisation steps (agent and injected).
+    /// Number of window positions for `opt` optimisation steps (agent and injected).
     pub fn num_positions(&self, opt: usize) -> u64 {
         let mut index = self.index_lock();
         index.agent.sync(&self.store.agent, opt);
@@ -469,70 +484,14 @@ impl EpisodicReplay {
         index.agent.total() + index.injected.total()
     }
 
-    /// Appends one transition of the agent's own experience to the open episode (starting
-    /// one if needed). `obs` is used only for the first step of an episode; later steps
-    /// continue from the previous `next_obs`. `state` is the acting-time recurrent state
-    /// before this step; it must have `state_dim` values when given, and is stored as zeros
-    /// when `None` (ignored when `state_dim == 0`). When `terminated || truncated` the
-    /// episode closes and becomes sampleable. Oldest closed episodes are evicted while the
-    /// buffer is over capacity. A rejected step (wrong sizes) stores nothing.
-    #[allow(clippy::too_many_arguments)] // one argument per field of a Gymnasium step
-    #[allow(
-        clippy::expect_used,
-        reason = "the step-wise API keeps an open episode after the first push"
-    )]
-    pub fn push(
-        &mut self,
-        obs: &[f32],
-        action: &[f32],
-        reward: f32,
-        next_obs: &[f32],
-        terminated: bool,
-        truncated: bool,
-        state: Option<&[f32]>,
-    ) -> Result<(), ReplayError> {
-        let cfg = self.store.config;
-        let dim = check_dim;
-        dim("obs", cfg.obs_dim, obs.len())?;
-        dim("action", cfg.act_dim, action.len())?;
-        dim("next_obs", cfg.obs_dim, next_obs.len())?;
-        if let Some(s) = state {
-            if cfg.state_dim > 0 || !s.is_empty() {
-                dim("state", cfg.state_dim, s.len())?;
-            }
-        }
-        let ep = self.store.open.get_or_insert_with(|| Episode {
-            obs: obs.to_vec(),
-            ..Episode::default()
-        });
-        ep.obs.extend_from_slice(next_obs);
-        ep.actions.extend_from_slice(action);
-        ep.rewards.push(reward);
-        if cfg.state_dim > 0 {
-            match state {
-                Some(s) => ep.states.extend_from_slice(s),
-                None => ep.states.resize(ep.states.len() + cfg.state_dim, 0.0),
-            }
-        }
-        if terminated || truncated {
-            let mut ep = self.store.open.take().expect("open episode");
-            ep.terminated = terminated;
-            ep.truncated = truncated;
-            self.insert_closed(ep);
-        } else {
-            self.evict_over_capacity();
-        }
-        Ok(())
-    }
-
-    /// Adds a whole closed episode (e.g. a teacher trajectory when `episode.injected`).
+    /// Adds a whole episode once it has ended: the agent's own, or a teacher's when
+    /// `episode.injected`.
     ///
     /// When `state_dim > 0`, `states` may be empty (read as zeros, e.g. for a teacher with
     /// another network); when `state_dim == 0` any states are dropped. Adding an injected
     /// episode evicts the oldest injected episodes until the injected transitions fit in
     /// their own budget, `floor(max_injected_fraction * capacity)`; adding an agent episode
-    /// evicts the oldest agent episodes while the agent's transitions exceed `capacity`. The
-    /// open episode is left alone.
+    /// evicts the oldest agent episodes while the agent's transitions exceed `capacity`.
     #[allow(
         clippy::expect_used,
         reason = "injected transitions are counted from the injected episodes held"
@@ -558,11 +517,11 @@ impl EpisodicReplay {
                 self.injected_transitions -= old.episode.len();
             }
         }
-        self.insert_closed(episode);
+        self.insert(episode);
         Ok(())
     }
 
-    fn insert_closed(&mut self, episode: Episode) {
+    fn insert(&mut self, episode: Episode) {
         let seq = self.store.next_seq;
         self.store.next_seq += 1;
         let len = episode.len();
@@ -577,9 +536,8 @@ impl EpisodicReplay {
         }
     }
 
-    /// Evicts the agent's oldest closed episodes while its transitions (open episode
-    /// included) exceed the capacity. Injected episodes are not touched. The open episode is
-    /// never evicted, nor the newest closed agent episode when no step is open: capacity is
+    /// Evicts the agent's oldest episodes while its transitions exceed the capacity. Injected
+    /// episodes are not touched. The newest agent episode is never evicted: capacity is
     /// exceeded only by a buffer holding one single agent episode longer than the capacity.
     #[allow(
         clippy::expect_used,
@@ -587,8 +545,7 @@ impl EpisodicReplay {
     )]
     fn evict_over_capacity(&mut self) {
         while self.agent_len_transitions() > self.store.config.capacity {
-            let closed = self.store.agent.len();
-            if closed == 0 || (closed == 1 && self.open_len() == 0) {
+            if self.store.agent.len() <= 1 {
                 break;
             }
             let old = self.store.agent.pop_front().expect("agent episode");
@@ -601,9 +558,8 @@ impl EpisodicReplay {
         self.index.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Draws `n` windows uniformly over all positions of the closed episodes (agent and
-    /// injected alike; see the [module docs](self)). Returns `None` when no episode is
-    /// closed.
+    /// Draws `n` windows uniformly over all positions of the episodes held (agent and
+    /// injected alike; see the [module docs](self)). Returns `None` when there is none.
     ///
     /// # Panics
     ///
@@ -645,8 +601,8 @@ impl EpisodicReplay {
 
     /// Draws `round(n * injected_share)` windows uniformly over the positions of injected
     /// episodes (first in the batch) and the rest uniformly over the agent's own episodes.
-    /// If one pool is empty every window comes from the other. Returns `None` when no
-    /// episode is closed. Annealing the share towards 0 over training is up to the caller.
+    /// If one pool is empty every window comes from the other. Returns `None` when the buffer
+    /// holds no episode. Annealing the share towards 0 over training is up to the caller.
     ///
     /// # Panics
     ///
@@ -809,22 +765,10 @@ mod tests {
         ep
     }
 
-    /// Pushes `len` steps of a coded agent episode; closes it unless `close` is false.
-    fn push_coded(buf: &mut EpisodicReplay, id: usize, len: usize, terminated: bool, close: bool) {
-        let ep = coded_episode(id, len, terminated, false);
-        for k in 0..len {
-            let last = close && k + 1 == len;
-            buf.push(
-                &ep.obs[k * OD..(k + 1) * OD],
-                &ep.actions[k * AD..(k + 1) * AD],
-                ep.rewards[k],
-                &ep.obs[(k + 1) * OD..(k + 2) * OD],
-                last && terminated,
-                last && !terminated,
-                Some(&ep.states[k * SD..(k + 1) * SD]),
-            )
+    /// Adds a coded agent episode of `len` steps.
+    fn add_coded(buf: &mut EpisodicReplay, id: usize, len: usize, terminated: bool) {
+        buf.add_episode(coded_episode(id, len, terminated, false))
             .unwrap();
-        }
     }
 
     fn config(capacity: usize) -> ReplayConfig {
@@ -906,12 +850,11 @@ mod tests {
     #[derive(Default)]
     struct Model {
         closed: Vec<Meta>,
-        open: usize,
     }
 
     impl Model {
         fn total(&self) -> usize {
-            self.closed.iter().map(|m| m.1).sum::<usize>() + self.open
+            self.closed.iter().map(|m| m.1).sum::<usize>()
         }
         /// The agent's transitions: what the capacity bounds.
         fn agent_total(&self) -> usize {
@@ -920,14 +863,13 @@ mod tests {
                 .filter(|m| !m.3)
                 .map(|m| m.1)
                 .sum::<usize>()
-                + self.open
         }
         /// Evicts the oldest agent episodes while the agent is over capacity; injected
         /// episodes have their own budget.
         fn evict(&mut self, cap: usize) {
             loop {
                 let agent = self.closed.iter().filter(|m| !m.3).count();
-                if self.agent_total() <= cap || agent == 0 || (agent == 1 && self.open == 0) {
+                if self.agent_total() <= cap || agent <= 1 {
                     break;
                 }
                 let pos = self.closed.iter().position(|m| !m.3).unwrap();
@@ -938,7 +880,7 @@ mod tests {
 
     #[derive(Debug, Clone)]
     enum Op {
-        /// Agent episode pushed step by step: (len, terminated).
+        /// The agent's own episode: (len, terminated).
         Agent(usize, bool),
         /// Injected whole episode: (len, terminated).
         Inject(usize, bool),
@@ -951,16 +893,15 @@ mod tests {
         ]
     }
 
-    /// Builds a buffer and its model from ops; the last op, when `leave_open` > 0, pushes
-    /// that many steps of an episode that stays open.
-    fn build(cap: usize, ops: &[Op], leave_open: usize) -> (EpisodicReplay, Model) {
+    /// Builds a buffer and its model from ops.
+    fn build(cap: usize, ops: &[Op]) -> (EpisodicReplay, Model) {
         let mut buf = EpisodicReplay::new(config(cap)).unwrap();
         let mut model = Model::default();
         let inj_limit = config(cap).max_injected_transitions();
         for (id, op) in ops.iter().enumerate() {
             match *op {
                 Op::Agent(len, term) => {
-                    push_coded(&mut buf, id, len, term, true);
+                    add_coded(&mut buf, id, len, term);
                     model.closed.push((id, len, term, false));
                     model.evict(cap);
                 }
@@ -986,24 +927,6 @@ mod tests {
                 }
             }
         }
-        if leave_open > 0 {
-            let id = ops.len();
-            let ep = coded_episode(id, leave_open, false, false);
-            for k in 0..leave_open {
-                buf.push(
-                    &ep.obs[k * OD..(k + 1) * OD],
-                    &ep.actions[k..k + 1],
-                    ep.rewards[k],
-                    &ep.obs[(k + 1) * OD..(k + 2) * OD],
-                    false,
-                    false,
-                    Some(&ep.states[k * SD..(k + 1) * SD]),
-                )
-                .unwrap();
-                model.open += 1;
-                model.evict(cap);
-            }
-        }
         (buf, model)
     }
 
@@ -1018,26 +941,23 @@ mod tests {
         fn prop_windows_and_eviction(
             cap in 5usize..80,
             ops in prop::collection::vec(op(), 0..25),
-            leave_open in 0usize..6,
             n in 1usize..40,
             scan in 0usize..7,
             opt in 1usize..7,
             seed in any::<u64>(),
             share in 0.0f64..=1.0,
         ) {
-            let (buf, model) = build(cap, &ops, leave_open);
+            let (buf, model) = build(cap, &ops);
             // Eviction: exactly the model's episodes, oldest first, same counts.
             prop_assert_eq!(ids(&buf), model.closed.iter().map(|m| m.0).collect::<Vec<_>>());
             prop_assert_eq!(buf.len_transitions(), model.total());
-            prop_assert_eq!(buf.open_len(), leave_open);
             let inj: usize = model.closed.iter().filter(|m| m.3).map(|m| m.1).sum();
             prop_assert_eq!(buf.injected_transitions(), inj);
             prop_assert!(inj <= config(cap).max_injected_transitions());
             // Capacity bounds the agent's transitions unless one single agent episode is
             // longer than it; injected ones have their own budget.
             let agent_eps = buf.num_episodes() - buf.num_injected_episodes();
-            let single = agent_eps + usize::from(buf.open_len() > 0) <= 1;
-            prop_assert!(buf.agent_len_transitions() <= cap || single);
+            prop_assert!(buf.agent_len_transitions() <= cap || agent_eps <= 1);
             prop_assert_eq!(buf.len_transitions(), buf.agent_len_transitions() + inj);
 
             let mut rng = NpRng::from_seed(seed);
@@ -1045,7 +965,6 @@ mod tests {
                 None => prop_assert_eq!(buf.num_episodes(), 0),
                 Some(b) => {
                     prop_assert_eq!(b.n, n);
-                    // The open episode (id = ops.len()) is never found by check_batch.
                     check_batch(&b, &model.closed);
                 }
             }
@@ -1072,10 +991,9 @@ mod tests {
         fn prop_serde_round_trip_same_samples(
             cap in 5usize..60,
             ops in prop::collection::vec(op(), 1..12),
-            leave_open in 0usize..4,
             seed in any::<u64>(),
         ) {
-            let (buf, _) = build(cap, &ops, leave_open);
+            let (buf, _) = build(cap, &ops);
             let mut rng = NpRng::from_seed(seed);
             // Warm the original's cache with another opt first: it must not matter.
             let _ = buf.sample(&mut rng.clone(), 3, 1, 2);
@@ -1103,10 +1021,8 @@ mod tests {
         let lens = [3usize, 5, 1, 8, 2];
         let mut buf = EpisodicReplay::new(config(100)).unwrap();
         for (id, &len) in lens.iter().enumerate() {
-            push_coded(&mut buf, id, len, id % 2 == 0, true);
+            add_coded(&mut buf, id, len, id % 2 == 0);
         }
-        // A partial episode that must never appear.
-        push_coded(&mut buf, 99, 4, false, false);
         let metas: Vec<Meta> = lens
             .iter()
             .enumerate()
@@ -1142,7 +1058,7 @@ mod tests {
     fn uniform_across_pools() {
         // Agent: one episode with 5 starts (len 5); injected: one with 3 (len 3).
         let mut buf = EpisodicReplay::new(config(100)).unwrap();
-        push_coded(&mut buf, 0, 5, true, true);
+        add_coded(&mut buf, 0, 5, true);
         let mut ep = coded_episode(1, 3, true, true);
         ep.states.clear();
         buf.add_episode(ep).unwrap();
@@ -1156,7 +1072,7 @@ mod tests {
     fn hand_checked_window() {
         // One terminated episode of 4 steps, scan 2, opt 3, start forced by sampling enough.
         let mut buf = EpisodicReplay::new(config(100)).unwrap();
-        push_coded(&mut buf, 7, 4, true, true);
+        add_coded(&mut buf, 7, 4, true);
         let mut rng = NpRng::from_seed(0);
         let b = buf.sample(&mut rng, 200, 2, 3).unwrap();
         let metas = [(7, 4, true, false)];
@@ -1188,7 +1104,7 @@ mod tests {
         // Truncated episode of 2 steps with opt 4: one window, opt_len 2, bootstrap at
         // slot scan + 2, not terminated.
         let mut buf = EpisodicReplay::new(config(100)).unwrap();
-        push_coded(&mut buf, 3, 2, false, true);
+        add_coded(&mut buf, 3, 2, false);
         let mut rng = NpRng::from_seed(1);
         let b = buf.sample(&mut rng, 1, 1, 4).unwrap();
         check_batch(&b, &[(3, 2, false, false)]);
@@ -1199,34 +1115,19 @@ mod tests {
     }
 
     #[test]
-    fn open_episode_is_never_sampled() {
-        let mut buf = EpisodicReplay::new(config(100)).unwrap();
-        push_coded(&mut buf, 0, 6, false, false);
-        let mut rng = NpRng::from_seed(0);
-        assert!(buf.sample(&mut rng, 4, 0, 1).is_none());
-        assert!(buf.sample_mixed(&mut rng, 4, 0, 1, 0.5).is_none());
-        assert_eq!((buf.len_transitions(), buf.num_episodes()), (6, 0));
-        assert_eq!(buf.open_episode().unwrap().len(), 6);
-    }
-
-    #[test]
-    fn eviction_oldest_first_and_open_kept() {
+    fn eviction_oldest_first_and_a_long_episode_kept_alone() {
         let mut buf = EpisodicReplay::new(config(10)).unwrap();
-        push_coded(&mut buf, 0, 4, true, true);
-        push_coded(&mut buf, 1, 4, true, true);
+        assert!(buf.sample(&mut NpRng::from_seed(0), 4, 0, 1).is_none());
+        add_coded(&mut buf, 0, 4, true);
+        add_coded(&mut buf, 1, 4, true);
         assert_eq!(ids(&buf), vec![0, 1]);
-        push_coded(&mut buf, 2, 3, true, true); // 11 > 10: evict episode 0
+        add_coded(&mut buf, 2, 3, true); // 11 > 10: evict episode 0
         assert_eq!(ids(&buf), vec![1, 2]);
         assert_eq!(buf.len_transitions(), 7);
-        // An open episode growing past the capacity evicts closed ones, never itself.
-        push_coded(&mut buf, 3, 12, false, false);
-        assert_eq!(buf.num_episodes(), 0);
-        assert_eq!(buf.len_transitions(), 12);
-        // When it closes it stays alone (the only episode exceeds the capacity).
-        buf.push(&[0.0; OD], &[0.0], 0.0, &[0.0; OD], true, false, None)
-            .unwrap();
+        // An episode longer than the capacity evicts every other one, never itself.
+        add_coded(&mut buf, 3, 13, false);
         assert_eq!((buf.num_episodes(), buf.len_transitions()), (1, 13));
-        push_coded(&mut buf, 4, 1, true, true);
+        add_coded(&mut buf, 4, 1, true);
         assert_eq!(ids(&buf), vec![4]);
     }
 
@@ -1237,7 +1138,7 @@ mod tests {
         let inject =
             |buf: &mut EpisodicReplay, id, len| buf.add_episode(coded_episode(id, len, true, true));
         inject(&mut buf, 0, 4).unwrap();
-        push_coded(&mut buf, 1, 3, true, true);
+        add_coded(&mut buf, 1, 3, true);
         inject(&mut buf, 2, 4).unwrap();
         assert_eq!(ids(&buf), vec![0, 1, 2]);
         inject(&mut buf, 3, 4).unwrap(); // 12 > 10 injected: drop injected 0, not agent 1
@@ -1251,7 +1152,7 @@ mod tests {
         // The agent's own episodes, however many, never evict injected ones: those have
         // their own budget on top of the capacity.
         for id in 10..20 {
-            push_coded(&mut buf, id, 5, true, true);
+            add_coded(&mut buf, id, 5, true);
         }
         assert_eq!(buf.num_injected_episodes(), 2);
         assert_eq!(buf.injected_transitions(), 8);
@@ -1269,25 +1170,16 @@ mod tests {
         assert!(EpisodicReplay::new(ReplayConfig::new(0, 1, 1)).is_err());
         assert!(EpisodicReplay::new(config(10).with_max_injected_fraction(1.5)).is_err());
         let mut buf = EpisodicReplay::new(config(10)).unwrap();
-        let err = buf.push(&[0.0; 3], &[0.0], 0.0, &[0.0; OD], false, false, None);
+        let mut ep = coded_episode(0, 3, true, false);
+        ep.states.pop();
         assert!(matches!(
-            err,
-            Err(ReplayError::Dimension { what: "obs", .. })
+            buf.add_episode(ep),
+            Err(ReplayError::Dimension {
+                what: "episode states",
+                ..
+            })
         ));
-        let err = buf.push(
-            &[0.0; OD],
-            &[0.0],
-            0.0,
-            &[0.0; OD],
-            false,
-            false,
-            Some(&[1.0]),
-        );
-        assert!(matches!(
-            err,
-            Err(ReplayError::Dimension { what: "state", .. })
-        ));
-        assert!(buf.is_empty(), "a rejected push stores nothing");
+        assert!(buf.is_empty(), "a rejected episode stores nothing");
         assert_eq!(
             buf.add_episode(Episode::default()),
             Err(ReplayError::EmptyEpisode)
@@ -1296,7 +1188,7 @@ mod tests {
         ep.obs.pop();
         assert!(buf.add_episode(ep).is_err());
         // A corrupt checkpoint is refused.
-        push_coded(&mut buf, 0, 3, true, true);
+        add_coded(&mut buf, 0, 3, true);
         let mut json: serde_json::Value = serde_json::to_value(&buf).unwrap();
         json["agent"][0]["episode"]["rewards"] = serde_json::json!([1.0]);
         assert!(serde_json::from_value::<EpisodicReplay>(json).is_err());
@@ -1310,24 +1202,25 @@ mod tests {
         assert!(buf.episodes()[0].states.is_empty());
         let b = buf.sample(&mut NpRng::from_seed(0), 2, 1, 1).unwrap();
         assert_eq!((b.stored_state, b.state_dim), (None, 0));
-        // state_dim > 0 and push without a state: zeros.
+        // state_dim > 0 and an episode without states: its windows start from zeros.
         let mut buf = EpisodicReplay::new(config(10)).unwrap();
-        buf.push(&[1.0; OD], &[0.0], 0.0, &[2.0; OD], true, false, None)
-            .unwrap();
-        assert_eq!(buf.episodes()[0].states, vec![0.0; SD]);
+        let mut ep = coded_episode(0, 3, true, false);
+        ep.states.clear();
+        buf.add_episode(ep).unwrap();
+        let b = buf.sample(&mut NpRng::from_seed(0), 2, 1, 1).unwrap();
+        assert_eq!(b.stored_state, Some(vec![0.0; 2 * SD]));
     }
 
     #[test]
     fn clear_and_reuse() {
         let mut buf = EpisodicReplay::new(config(50)).unwrap();
-        push_coded(&mut buf, 0, 5, true, true);
+        add_coded(&mut buf, 0, 5, true);
         let mut rng = NpRng::from_seed(0);
         assert!(buf.sample(&mut rng, 2, 0, 2).is_some());
-        push_coded(&mut buf, 1, 2, true, false);
         buf.clear();
         assert_eq!((buf.len_transitions(), buf.num_episodes()), (0, 0));
         assert!(buf.sample(&mut rng, 2, 0, 2).is_none());
-        push_coded(&mut buf, 2, 4, true, true);
+        add_coded(&mut buf, 2, 4, true);
         let b = buf.sample(&mut rng, 8, 0, 2).unwrap();
         check_batch(&b, &[(2, 4, true, false)]);
         assert_eq!(buf.num_positions(2), 4);
@@ -1342,7 +1235,7 @@ mod tests {
         let mut present: Vec<Meta> = Vec::new();
         for id in 0..200 {
             let len = 1 + (id * 7) % 11;
-            push_coded(&mut buf, id, len, id % 3 == 0, true);
+            add_coded(&mut buf, id, len, id % 3 == 0);
             present.push((id, len, id % 3 == 0, false));
             let live = ids(&buf);
             present.retain(|m| live.contains(&m.0));
@@ -1355,9 +1248,8 @@ mod tests {
     }
 
     #[test]
-    fn sampling_is_fast_enough() {
-        // 1e5 transitions in 100 episodes; 64 windows of 120 + 8 steps. Not a timing
-        // assertion, only a smoke test that a large buffer samples.
+    fn a_large_buffer_samples() {
+        // 1e5 transitions in 100 episodes; 64 windows of 120 + 8 steps.
         let cfg = ReplayConfig::new(100_000, 24, 4).with_state_dim(16);
         let mut buf = EpisodicReplay::new(cfg).unwrap();
         for e in 0..100 {

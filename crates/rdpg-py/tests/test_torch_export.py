@@ -5,7 +5,8 @@ actor); its module then gets the same full observations open-loop, state threade
 give the same actions. The agents: every zoo entry (LSTM RDPG, TD3, TD3-FORK), a window-of-k
 RDPG agent trained on the cue task here, and small agents with random weights written here for
 what no shipped agent uses: the paper's lidar trunk, hidden observation components, the
-previous action as input, a window agent reading it, and PPO.
+previous action as input, a window agent reading it, head layers after the core with the skip
+connection around it (LSTM and feed-forward), and PPO.
 """
 
 from __future__ import annotations
@@ -42,6 +43,17 @@ SYNTHETIC = {
         "ddpg",
         {"hide_obs": [13]},
         {"recurrent": False, "scan_len": 0, "opt_len": 1, "update_len": 1},
+    ),
+    "lidar-skip-lstm": (
+        "rdpg",
+        {"prev_action_obs": True},
+        {"actor_head": [12, 6], "critic_head": [10], "core_skip": True},
+    ),
+    "lidar-skip-ddpg": (
+        "ddpg",
+        {},
+        {"recurrent": False, "scan_len": 0, "opt_len": 1, "update_len": 1,
+         "actor_head": [12], "core_skip": True},
     ),
     "ppo": ("ppo", {"hide_obs": [2, 3], "prev_action_obs": True}, {"hidden": [32, 16]}),
 }
@@ -110,7 +122,11 @@ def _rdpg_shapes(cfg: dict, obs_dim: int, act_dim: int) -> dict[str, tuple[int, 
             shapes[f"{lstm}.bias_ih_l0"] = shapes[f"{lstm}.bias_hh_l0"] = (4 * hidden,)
         else:
             shapes |= _linear(f"{net}.core.fc", embed, hidden)
-        shapes |= _linear(f"{net}.head", hidden, out)
+        width = hidden + (embed if cfg.get("core_skip", False) else 0)
+        for i, h in enumerate(cfg.get(f"{net}_head", [])):
+            shapes |= _linear(f"{net}.head_mlp.fc{i}", width, h)
+            width = h
+        shapes |= _linear(f"{net}.head", width, out)
     shapes |= _linear("critic.act_fc", act_dim, af)
     if cfg.get("tau", 0.0) > 0:
         shapes |= {f"target.{k}": v for k, v in shapes.items()}

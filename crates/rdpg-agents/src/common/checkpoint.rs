@@ -25,7 +25,12 @@ use crate::error::{AgentError, Result};
 /// re-cut of the agents crate) had no `checkpoint.json` and a different `loop.bin`; format 2
 /// had no `manifest.json`, and its walkers kept one Box2D world across episodes, so their
 /// episodes in progress cannot be rebuilt (see `rdpg_envs::WalkerConfig::fresh_world`).
-pub const TRAINER_FORMAT: u32 = 3;
+/// Format 3 differs from 4 only by a field at the end of `replay.bin` (an episode in progress
+/// the trainer never used), so it still loads ([`rdpg_core::replay::ReplayFormat3`]).
+pub const TRAINER_FORMAT: u32 = 4;
+
+/// The oldest trainer checkpoint format this build resumes.
+pub const OLDEST_TRAINER_FORMAT: u32 = 3;
 
 /// The most updates (or optimiser steps) a saved counter may claim: far beyond any run, and
 /// far from where counting on would overflow.
@@ -382,17 +387,18 @@ impl Header {
                 dir,
                 format!(
                     "written by an earlier rdpg (trainer checkpoint format 1); this build reads \
-                     format {TRAINER_FORMAT}. Its agent (`agent/`, and `checkpoints/best`) still \
+                     formats {OLDEST_TRAINER_FORMAT} to {TRAINER_FORMAT}. Its agent (`agent/`, and `checkpoints/best`) still \
                      loads for eval, render and record; to train further, start a new run"
                 ),
             ));
         }
         let h: Header = read_json(&path)?;
-        if h.format != TRAINER_FORMAT {
+        if !(OLDEST_TRAINER_FORMAT..=TRAINER_FORMAT).contains(&h.format) {
             return Err(ckpt_err(
                 &path,
                 format!(
-                    "trainer checkpoint format {}, this build reads format {TRAINER_FORMAT} \
+                    "trainer checkpoint format {}, this build reads formats \
+                     {OLDEST_TRAINER_FORMAT} to {TRAINER_FORMAT} \
                      (its agent, `agent/` and `checkpoints/best`, still loads for eval, render, \
                      zoo and record; to train further, start a new run)",
                     h.format

@@ -12,7 +12,7 @@ use crate::common::config::TrainConfig;
 use crate::error::Result;
 
 /// What one update reported, in the terms every learner shares.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct UpdateStats {
     /// Critic loss (RDPG: weighted squared TD error, summed over twin critics; PPO: the value
     /// loss).
@@ -32,13 +32,12 @@ pub struct UpdateStats {
     /// Wall-clock seconds the update took (speed monitoring; the only field that differs
     /// between identical runs).
     pub seconds: f64,
-    /// FORK's dynamics-model loss on the batch, before its step; `None` without FORK.
+    /// What only some learners report, by name; the logs average each over the updates
+    /// that report it. FORK: `model_loss` (its dynamics-model loss on the batch, before its
+    /// step) and, on the actor's turns, `fork_share` (1 when the forward-looking term was in
+    /// the actor's loss, the dynamics loss being below its threshold, else 0).
     #[serde(default)]
-    pub model_loss: Option<f64>,
-    /// On an update that trained the actor with FORK: whether the forward-looking term was
-    /// in its loss (the dynamics loss was below the threshold); `None` otherwise.
-    #[serde(default)]
-    pub fork_term: Option<bool>,
+    pub extra: BTreeMap<String, f64>,
 }
 
 /// A finished training episode.

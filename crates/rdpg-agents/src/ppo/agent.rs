@@ -101,8 +101,7 @@ impl From<PpoStats> for UpdateStats {
             q_mean: s.value_mean,
             injected_share: 0.0,
             seconds: s.seconds,
-            model_loss: None,
-            fork_term: None,
+            extra: Default::default(),
         }
     }
 }

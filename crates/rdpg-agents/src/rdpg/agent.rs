@@ -4,6 +4,7 @@
 //! `update.rs`, checkpoints in `checkpoint.rs`.
 
 use rdpg_core::rng::NpRng;
+use rdpg_core::SequenceBatch;
 use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
@@ -11,6 +12,7 @@ use super::config::RdpgConfig;
 use super::config::ScanMethod;
 use super::lstm::{scan_state, RecState};
 use super::nets::{Actor, Critic};
+use super::prepared::{BatchSpec, Prepared};
 use super::profile::PhaseTimes;
 use crate::common::adam::{Adam, AdamConfig};
 use crate::common::tensor::{
@@ -440,6 +442,38 @@ impl RdpgAgent {
     /// the `state_dim` a replay storing states must use.
     pub fn state_dim(&self) -> usize {
         2 * self.actor.core.state_width() as usize
+    }
+
+    /// Switches per-phase timing on (resetting it) or off.
+    pub fn set_profiling(&mut self, on: bool) {
+        self.profile = on.then(PhaseTimes::default);
+    }
+
+    /// The per-phase timings accumulated since profiling was switched on.
+    pub fn profile(&self) -> Option<PhaseTimes> {
+        self.profile
+    }
+
+    /// What a batch is checked against and uploaded for.
+    fn batch_spec(&self) -> BatchSpec<'_> {
+        BatchSpec {
+            cfg: &self.cfg,
+            obs_dim: self.obs_dim,
+            act_dim: self.act_dim,
+            state_width: self.actor.core.state_width(),
+            kind: self.kind,
+            device: self.device,
+        }
+    }
+
+    /// Checks a batch against this agent (sizes, lengths, mask, stored state).
+    pub fn check_batch(&self, b: &SequenceBatch) -> Result<()> {
+        self.batch_spec().check_batch(b)
+    }
+
+    /// Uploads the batch and builds the small index/weight tensors of the update.
+    pub(super) fn prepare(&self, b: &SequenceBatch) -> Prepared {
+        self.batch_spec().prepare(b)
     }
 
     /// The actor network.

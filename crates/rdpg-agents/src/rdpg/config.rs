@@ -708,6 +708,25 @@ mod tests {
             ..Default::default()
         };
         assert!(c.validate().unwrap_err().to_string().contains("trunk"));
+        for (c, field) in [
+            (
+                RdpgConfig {
+                    actor_head: vec![8, 0],
+                    ..Default::default()
+                },
+                "actor_head",
+            ),
+            (
+                RdpgConfig {
+                    critic_head: vec![MAX_WIDTH + 1],
+                    ..Default::default()
+                },
+                "critic_head",
+            ),
+        ] {
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(field), "{e}");
+        }
         // parallel_twins: twin critics, targets and the tail bootstrap, each required.
         let twins = RdpgConfig {
             parallel_twins: true,

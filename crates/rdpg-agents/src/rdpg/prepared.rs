@@ -4,9 +4,9 @@
 
 use rdpg_core::targets::interpolated_td_weights_padded;
 use rdpg_core::SequenceBatch;
-use tch::Tensor;
+use tch::{Device, Kind, Tensor};
 
-use super::agent::RdpgAgent;
+use super::config::RdpgConfig;
 use super::lstm::RecState;
 use crate::{AgentError, Result};
 
@@ -99,9 +99,24 @@ impl Prepared {
     }
 }
 
-impl RdpgAgent {
-    /// Checks a batch against this agent (sizes, lengths, mask, stored state).
-    pub fn check_batch(&self, b: &SequenceBatch) -> Result<()> {
+/// What a batch is checked against and uploaded for: the agent's settings, sizes and tensors.
+pub(super) struct BatchSpec<'a> {
+    pub(super) cfg: &'a RdpgConfig,
+    pub(super) obs_dim: usize,
+    pub(super) act_dim: usize,
+    /// The actor's recurrent width `H` (a stored state is `[h, c]`, `2H` values).
+    pub(super) state_width: i64,
+    pub(super) kind: Kind,
+    pub(super) device: Device,
+}
+
+impl BatchSpec<'_> {
+    fn state_dim(&self) -> usize {
+        2 * self.state_width as usize
+    }
+
+    /// Checks a batch against the agent (sizes, lengths, mask, stored state).
+    pub(super) fn check_batch(&self, b: &SequenceBatch) -> Result<()> {
         let err = |m: String| Err(AgentError::Shape(m));
         let t = b.scan.saturating_add(b.opt);
         // Saturating: a batch with absurd sizes does not match, rather than overflow.
@@ -220,7 +235,7 @@ impl RdpgAgent {
         // with `s = 0` its first optimisation step: R2D2's "stored state, no burn-in").
         let stored = match (&b.stored_state, self.cfg.burn_in_from_stored_state) {
             (Some(st), true) => {
-                let h = self.actor.core.state_width();
+                let h = self.state_width;
                 let t = up(st, &[n, 2 * h]);
                 Some(RecState {
                     h: t.narrow(1, 0, h).unsqueeze(0).contiguous(),

@@ -5,8 +5,6 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::agent::RdpgAgent;
-
 /// Wall-clock seconds spent in each phase of the updates since profiling was switched on
 /// (meaningful on the CPU, where libtorch runs synchronously).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
@@ -80,18 +78,6 @@ impl PhaseTimes {
             &mut self.actor_step,
             &mut self.other,
         ]
-    }
-}
-
-impl RdpgAgent {
-    /// Switches per-phase timing on (resetting it) or off.
-    pub fn set_profiling(&mut self, on: bool) {
-        self.profile = on.then(PhaseTimes::default);
-    }
-
-    /// The per-phase timings accumulated since profiling was switched on.
-    pub fn profile(&self) -> Option<PhaseTimes> {
-        self.profile
     }
 }
 

@@ -18,7 +18,7 @@ use rdpg_core::noise::{
     action_distance, ActionNoise, AdaptiveParamNoise, Gaussian, OrnsteinUhlenbeck, OuConfig,
     ParamNoiseConfig,
 };
-use rdpg_core::replay::{Episode, EpisodicReplay, ReplayConfig};
+use rdpg_core::replay::{Episode, EpisodicReplay, ReplayConfig, ReplayFormat3};
 use rdpg_core::rng::NpRng;
 use serde::{Deserialize, Serialize};
 
@@ -174,13 +174,19 @@ impl OffPolicyTrainer {
     /// Resumes a checkpoint written by [`Trainer::save`]; continuing gives the same result as
     /// never having stopped.
     pub fn load(dir: &Path) -> Result<Self> {
-        Header::read(dir, Some(TrainerKind::OffPolicy))?;
+        let header = Header::read(dir, Some(TrainerKind::OffPolicy))?;
         let cfg: TrainConfig = read_json(&dir.join("train.json"))?;
         cfg.validate()?;
         let off: OffPolicyConfig = read_json(&dir.join("off_policy.json"))?;
         off.validate()?;
         let mut agent = RdpgAgent::load(dir.join("agent"))?;
-        let replay: EpisodicReplay = read_bin(&dir.join("replay.bin"))?;
+        let replay_path = dir.join("replay.bin");
+        let replay: EpisodicReplay = if header.format == 3 {
+            EpisodicReplay::try_from(read_bin::<ReplayFormat3>(&replay_path)?)
+                .map_err(|e| ckpt_err(&replay_path, e))?
+        } else {
+            read_bin(&replay_path)?
+        };
         let st: LoopState = read_bin(&dir.join("loop.bin"))?;
         let collector = Collector::restore(&cfg, read_bin(&dir.join("collector.bin"))?)?;
         let n = cfg.num_envs;

@@ -57,6 +57,7 @@
 //! the result is bit-identical. The batch as the update reads it is built in `prepared.rs`,
 //! the per-phase stopwatch in `profile.rs`.
 
+use std::collections::BTreeMap;
 use std::time::Instant;
 
 use rdpg_core::SequenceBatch;
@@ -253,6 +254,14 @@ impl RdpgAgent {
         // Mean over the trained steps (the real ones among the first u).
         let mask = p.mask.narrow(1, 0, p.u);
         let q_mean = tch::no_grad(|| (q0 * &mask).sum(self.kind) / mask.sum(self.kind));
+        let mut extra = BTreeMap::new();
+        if let Some(m) = &model_step {
+            extra.insert("model_loss".to_string(), m.dynamics_loss);
+            // FORK's term is reported on the actor's turns only.
+            if actor_loss.is_some() {
+                extra.insert("fork_share".to_string(), f64::from(u8::from(m.use_term)));
+            }
+        }
         UpdateStats {
             critic_loss: critic_loss.double_value(&[]),
             q_mean: q_mean.double_value(&[]),
@@ -260,11 +269,7 @@ impl RdpgAgent {
                 / batch.n as f64,
             seconds: 0.0,
             actor_loss,
-            model_loss: model_step.as_ref().map(|m| m.dynamics_loss),
-            // FORK's term is reported on the actor's turns only.
-            fork_term: model_step
-                .filter(|_| actor_loss.is_some())
-                .map(|m| m.use_term),
+            extra,
         }
     }
 

@@ -305,7 +305,7 @@ impl RunLog {
     }
 
     fn write_tensorboard(&mut self, m: &Metric) -> Result<()> {
-        let scalars: Vec<(&str, f64)> = match m {
+        let scalars: Vec<(String, f64)> = match m {
             Metric::Episode {
                 ret,
                 stock_return,
@@ -314,17 +314,19 @@ impl RunLog {
                 ..
             } => {
                 let mut v = vec![
-                    ("train/return", *ret),
-                    ("train/stock_return", *stock_return),
-                ];
-                v.extend(r100.map(|r| ("train/return_100ma", r)));
-                v.extend(u.critic_loss.map(|x| ("learner/critic_loss", x)));
-                v.extend(u.actor_loss.map(|x| ("learner/actor_loss", x)));
-                v.extend(u.q_mean.map(|x| ("learner/q_mean", x)));
-                v.extend(u.injected_share.map(|x| ("learner/injected_share", x)));
-                v.extend(u.update_ms.map(|x| ("learner/update_ms", x)));
-                v.extend(u.model_loss.map(|x| ("learner/model_loss", x)));
-                v.extend(u.fork_share.map(|x| ("learner/fork_share", x)));
+                    ("train/return", Some(*ret)),
+                    ("train/stock_return", Some(*stock_return)),
+                    ("train/return_100ma", *r100),
+                    ("learner/critic_loss", u.critic_loss),
+                    ("learner/actor_loss", u.actor_loss),
+                    ("learner/q_mean", u.q_mean),
+                    ("learner/injected_share", u.injected_share),
+                    ("learner/update_ms", u.update_ms),
+                ]
+                .into_iter()
+                .filter_map(|(k, x)| Some((k.to_string(), x?)))
+                .collect::<Vec<_>>();
+                v.extend(u.extra.iter().map(|(k, &x)| (format!("learner/{k}"), x)));
                 v
             }
             Metric::Eval {
@@ -333,14 +335,14 @@ impl RunLog {
                 success_rate,
                 ..
             } => vec![
-                ("eval/mean_stock_return", *mean_return),
-                ("eval/std_stock_return", *std_return),
-                ("eval/success_rate", *success_rate),
+                ("eval/mean_stock_return".into(), *mean_return),
+                ("eval/std_stock_return".into(), *std_return),
+                ("eval/success_rate".into(), *success_rate),
             ],
         };
         for (tag, v) in scalars {
             self.tb
-                .write_scalar(tag, m.step() as i64, v as f32)
+                .write_scalar(&tag, m.step() as i64, v as f32)
                 .context("writing TensorBoard events")?;
         }
         Ok(())

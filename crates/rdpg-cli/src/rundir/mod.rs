@@ -20,12 +20,12 @@
 //! entry's summary, and the entry read as a run.
 
 mod log;
-mod machine;
+pub mod machine;
 mod schema;
 mod zoo_entry;
 
 pub use log::{MovingAverage, RunLog};
-pub use machine::{machine_description, meminfo_bytes};
+pub use machine::machine_description;
 pub use schema::{
     EvalSummary, Metric, Summary, TeacherSummary, TestSummary, UpdateSums, EPISODES_HEADER,
     EVALS_HEADER,

@@ -1,6 +1,7 @@
 //! What a run directory's files hold: metric rows, update statistics, the summary, teachers
 //! and tests.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::Result;
@@ -66,7 +67,7 @@ impl Metric {
 
 /// The learner's updates between two metric rows: how many, and their mean statistics
 /// (`None` when there were none).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct UpdateMeans {
     /// Updates made.
     pub updates: u64,
@@ -81,18 +82,32 @@ pub struct UpdateMeans {
     /// Mean wall-clock milliseconds per update (speed; differs between identical runs).
     #[serde(default)]
     pub update_ms: Option<f64>,
-    /// Mean FORK dynamics-model loss (runs with `agent.fork`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub model_loss: Option<f64>,
-    /// Share of the actor updates whose loss had FORK's forward-looking term.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fork_share: Option<f64>,
+    /// The mean of each learner-specific statistic ([`UpdateStats::extra`]) over the updates
+    /// that reported it, by name, beside the fields above (FORK: `model_loss`, `fork_share`).
+    #[serde(flatten)]
+    pub extra: BTreeMap<String, f64>,
 }
 
 /// Sums of update statistics, turned into [`UpdateMeans`] at each metric row. The sums
 /// pending at a checkpoint are saved with it, so that a resumed run logs the same rows.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(from = "UpdateSumsFile")]
 pub struct UpdateSums {
+    n: u64,
+    n_actor: u64,
+    critic: f64,
+    actor: f64,
+    q: f64,
+    injected: f64,
+    seconds: f64,
+    /// Per learner-specific statistic: the updates that reported it and their sum.
+    extra: BTreeMap<String, (u64, f64)>,
+}
+
+/// [`UpdateSums`] as a checkpoint's `pending_updates.json` holds it, including the FORK
+/// fields of files written before `extra` (read into it).
+#[derive(Deserialize)]
+struct UpdateSumsFile {
     n: u64,
     n_actor: u64,
     critic: f64,
@@ -102,6 +117,8 @@ pub struct UpdateSums {
     #[serde(default)]
     seconds: f64,
     #[serde(default)]
+    extra: BTreeMap<String, (u64, f64)>,
+    #[serde(default)]
     n_model: u64,
     #[serde(default)]
     model: f64,
@@ -109,6 +126,28 @@ pub struct UpdateSums {
     n_fork_turn: u64,
     #[serde(default)]
     fork_used: u64,
+}
+
+impl From<UpdateSumsFile> for UpdateSums {
+    fn from(f: UpdateSumsFile) -> Self {
+        let mut extra = f.extra;
+        if f.n_model > 0 {
+            extra.insert("model_loss".into(), (f.n_model, f.model));
+        }
+        if f.n_fork_turn > 0 {
+            extra.insert("fork_share".into(), (f.n_fork_turn, f.fork_used as f64));
+        }
+        Self {
+            n: f.n,
+            n_actor: f.n_actor,
+            critic: f.critic,
+            actor: f.actor,
+            q: f.q,
+            injected: f.injected,
+            seconds: f.seconds,
+            extra,
+        }
+    }
 }
 
 impl UpdateSums {
@@ -123,13 +162,10 @@ impl UpdateSums {
             self.n_actor += 1;
             self.actor += a;
         }
-        if let Some(m) = s.model_loss {
-            self.n_model += 1;
-            self.model += m;
-        }
-        if let Some(used) = s.fork_term {
-            self.n_fork_turn += 1;
-            self.fork_used += u64::from(used);
+        for (name, &x) in &s.extra {
+            let (n, sum) = self.extra.entry(name.clone()).or_default();
+            *n += 1;
+            *sum += x;
         }
     }
 
@@ -144,8 +180,11 @@ impl UpdateSums {
             q_mean: mean(s.q, s.n),
             injected_share: mean(s.injected, s.n),
             update_ms: mean(1000.0 * s.seconds, s.n),
-            model_loss: mean(s.model, s.n_model),
-            fork_share: mean(s.fork_used as f64, s.n_fork_turn),
+            extra: s
+                .extra
+                .iter()
+                .filter_map(|(name, &(n, sum))| Some((name.clone(), mean(sum, n)?)))
+                .collect(),
         }
     }
 }

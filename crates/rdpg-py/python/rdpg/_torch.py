@@ -67,6 +67,8 @@ _RDPG_DEFAULTS: Dict[str, Any] = {
     "body_fc": 192,
     "recurrent": True,
     "actor_hidden": 256,
+    "actor_head": [],
+    "core_skip": False,
     "act_window": 0,
 }
 
@@ -207,6 +209,35 @@ class _Lstm(nn.Module):
         return hn.squeeze(0), cn.squeeze(0)
 
 
+class _Head(nn.Module):
+    """``nets.rs``'s actor head: from the core's output ``y [n, H]`` (after its input
+    ``x [n, E]`` with ``core_skip``), the ``actor_head`` layers (FC + ReLU), then FC + tanh."""
+
+    def __init__(self, skip: bool, layers: nn.Module):
+        super().__init__()
+        self.skip = skip
+        self.layers = layers
+
+    def forward(self, x: Tensor, y: Tensor) -> Tensor:
+        if self.skip:
+            y = torch.cat([x, y], -1)
+        return self.layers(y)
+
+
+class _FeedForwardActor(nn.Module):
+    """A DDPG/TD3 actor: trunk, FC + ReLU core, head."""
+
+    def __init__(self, trunk: nn.Module, core: nn.Module, head: _Head):
+        super().__init__()
+        self.trunk = trunk
+        self.core = core
+        self.head = head
+
+    def forward(self, view: Tensor) -> Tensor:
+        x = self.trunk(view)
+        return self.head(x, torch.relu(self.core(x)))
+
+
 class _Policy(nn.Module):
     """What every agent kind shares: the agent's view of a full observation (hidden
     components dropped, the previous action in front with ``prev_action_obs``) and the action
@@ -262,7 +293,7 @@ class LstmPolicy(_Policy):
 
     state_names = ("prev_action", "h", "c")
 
-    def __init__(self, trunk: nn.Module, lstm: _Lstm, head: nn.Module, **base: Any):
+    def __init__(self, trunk: nn.Module, lstm: _Lstm, head: _Head, **base: Any):
         super().__init__(**base)
         self.trunk = trunk
         self.lstm = lstm
@@ -270,8 +301,9 @@ class LstmPolicy(_Policy):
 
     def forward(self, obs: Tensor, state: _State3) -> Tuple[Tensor, _State3]:
         prev, h, c = state
-        h, c = self.lstm.step(self.trunk(self._view(obs, prev)), h, c)
-        a = self._env_action(self.head(h))
+        x = self.trunk(self._view(obs, prev))
+        h, c = self.lstm.step(x, h, c)
+        a = self._env_action(self.head(x, h))
         return a, (a, h, c)
 
     @torch.jit.export
@@ -290,7 +322,7 @@ class WindowPolicy(_Policy):
     state_names = ("prev_action", "history", "count")
 
     def __init__(
-        self, trunk: nn.Module, lstm: _Lstm, head: nn.Module, k: int, view_dim: int, **base: Any
+        self, trunk: nn.Module, lstm: _Lstm, head: _Head, k: int, view_dim: int, **base: Any
     ):
         super().__init__(**base)
         self.trunk = trunk
@@ -312,8 +344,9 @@ class WindowPolicy(_Policy):
             hs, cs = self.lstm.scan(x[:, s - steps :], zero, zero)
             real = (count == steps).unsqueeze(1)
             h, c = torch.where(real, hs, h), torch.where(real, cs, c)
-        h, _ = self.lstm.step(self.trunk(view), h, c)
-        a = self._env_action(self.head(h))
+        x_t = self.trunk(view)
+        h, _ = self.lstm.step(x_t, h, c)
+        a = self._env_action(self.head(x_t, h))
         history = torch.cat([history[:, 1:], view.unsqueeze(1)], 1)
         return a, (a, history, (count + 1.0).clamp(max=float(s)))
 
@@ -346,9 +379,15 @@ def _rdpg_actor(
     hidden = cfg["actor_hidden"]
     trunk, embed = _trunk(w, cfg, view_dim)
     core = _Lstm(w, embed, hidden) if cfg["recurrent"] else w.linear("actor.core.fc", embed, hidden)
-    head = nn.Sequential(w.linear("actor.head", hidden, act_dim), nn.Tanh())
+    layers: List[nn.Module] = []
+    width = hidden + (embed if cfg["core_skip"] else 0)
+    for i, h in enumerate(cfg["actor_head"]):
+        layers += [w.linear(f"actor.head_mlp.fc{i}", width, h), nn.ReLU()]
+        width = h
+    layers += [w.linear("actor.head", width, act_dim), nn.Tanh()]
+    head = _Head(bool(cfg["core_skip"]), nn.Sequential(*layers))
     if not cfg["recurrent"]:
-        return FeedForwardPolicy(nn.Sequential(trunk, core, nn.ReLU(), head), **base)
+        return FeedForwardPolicy(_FeedForwardActor(trunk, core, head), **base)
     if cfg["act_window"]:
         return WindowPolicy(trunk, core, head, cfg["act_window"], view_dim, **base)
     return LstmPolicy(trunk, core, head, **base)

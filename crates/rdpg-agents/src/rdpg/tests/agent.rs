@@ -315,6 +315,13 @@ fn param_count_is_exact() {
             tau: 0.01,
             ..mlp(5)
         },
+        with_heads(tiny(), true),
+        RdpgConfig {
+            critic_action_fc: 0,
+            tau: 0.01,
+            ..with_heads(mlp(5), true)
+        },
+        with_heads(ff.clone(), true),
         ff,
     ] {
         let agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 0).unwrap();

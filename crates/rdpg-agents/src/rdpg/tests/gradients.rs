@@ -4,12 +4,12 @@ use super::*;
 
 #[test]
 fn critic_loss_gradient_matches_finite_differences() {
-    for recurrent in [true, false] {
+    for (recurrent, heads) in [(true, false), (false, false), (true, true), (false, true)] {
         let cfg = RdpgConfig {
             recurrent,
             lambda: 0.7,
             update_len: 2,
-            ..tiny()
+            ..with_heads(tiny(), heads)
         };
         let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 21, Kind::Double).unwrap();
         let b = batch(&cfg, 5, 0.5, 8);
@@ -29,17 +29,17 @@ fn critic_loss_gradient_matches_finite_differences() {
         check_grads(
             &agent.critic_vs[0],
             &f,
-            &format!("critic (recurrent {recurrent})"),
+            &format!("critic (recurrent {recurrent}, heads {heads})"),
         );
     }
 }
 
 #[test]
 fn actor_loss_gradient_matches_finite_differences() {
-    for bptt in [false, true] {
+    for (bptt, heads) in [(false, false), (true, false), (false, true), (true, true)] {
         let cfg = RdpgConfig {
             actor_bptt: bptt,
-            ..tiny()
+            ..with_heads(tiny(), heads)
         };
         let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 22, Kind::Double).unwrap();
         let b = batch(&cfg, 5, 0.5, 9);
@@ -59,7 +59,11 @@ fn actor_loss_gradient_matches_finite_differences() {
         agent.actor_opt.zero_grad();
         loss(&agent).backward();
         let f = || tch::no_grad(|| loss(&agent).double_value(&[]));
-        check_grads(&agent.actor_vs, &f, &format!("actor (bptt {bptt})"));
+        check_grads(
+            &agent.actor_vs,
+            &f,
+            &format!("actor (bptt {bptt}, heads {heads})"),
+        );
     }
 }
 

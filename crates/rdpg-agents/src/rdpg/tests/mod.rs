@@ -53,6 +53,20 @@ fn mlp(obs_hidden: usize) -> RdpgConfig {
     }
 }
 
+/// `cfg` with head layers after both cores and the skip connection around them (`heads`), or
+/// as it is.
+fn with_heads(cfg: RdpgConfig, heads: bool) -> RdpgConfig {
+    if !heads {
+        return cfg;
+    }
+    RdpgConfig {
+        actor_head: vec![3],
+        critic_head: vec![4, 2],
+        core_skip: true,
+        ..cfg
+    }
+}
+
 fn batch(cfg: &RdpgConfig, n: usize, short: f64, seed: u64) -> SequenceBatch {
     let mut rng = NpRng::from_seed(seed);
     synthetic_batch(n, cfg.scan_len, cfg.opt_len, OBS, ACT, short, &mut rng)
