@@ -269,16 +269,21 @@ impl TeacherSummary {
         })
     }
 
-    /// In words: `hardcore-td3-paper (ddpg, best; test 245.5 ± 62.5 stock, 100 ep.)`.
+    /// In words: `hardcore-td3-paper (ddpg, best at 1975000 steps; test 245.5 ± 52.3 stock, 100
+    /// ep.)`.
     pub fn label(&self) -> String {
         let t = &self.teacher;
-        let test = t.test.map_or("no test".into(), |x| {
-            format!(
-                "test {:.1} ± {:.1} stock, {} ep.",
-                x.mean_stock_return, x.std_stock_return, x.episodes
+        // The teacher's budget (the steps of its tested agent) and its own test.
+        let (at, test) = t.test.map_or((String::new(), "no test".into()), |x| {
+            (
+                format!(" at {} steps", x.step),
+                format!(
+                    "test {:.1} ± {:.1} stock, {} ep.",
+                    x.mean_stock_return, x.std_stock_return, x.episodes
+                ),
             )
         });
-        format!("{} ({}, {}; {test})", t.name, t.algo, t.checkpoint)
+        format!("{} ({}, {}{at}; {test})", t.name, t.algo, t.checkpoint)
     }
 }
 
