@@ -1,6 +1,6 @@
 //! Actor-critic learners for rdpg on libtorch (through `tch`): the recurrent deterministic
-//! policy gradient (RDPG) of Song et al. (ICARCV 2018), its feed-forward DDPG variant, and the
-//! PPO-KL baseline of the paper's Table I.
+//! policy gradient (RDPG) of Song et al. (ICARCV 2018), its feed-forward DDPG variant, soft
+//! actor-critic on the same sequence machinery, and the PPO-KL baseline of the paper's Table I.
 //!
 //! This is the only crate of the workspace that names the tensor library. One room per
 //! concern:
@@ -65,7 +65,8 @@ use common::checkpoint::{Header, TrainerKind};
 #[derive(Debug, Clone, PartialEq)]
 #[allow(clippy::large_enum_variant)] // built once per run; boxing would only add noise
 pub enum Learner {
-    /// RDPG (`agent.recurrent = true`) or DDPG (`false`): the off-policy learner and its loop.
+    /// RDPG (`agent.recurrent = true`), DDPG (`false`) or SAC (`agent.sac`): the off-policy
+    /// learner and its loop.
     OffPolicy {
         /// The learner's hyper-parameters.
         agent: RdpgConfig,
@@ -110,7 +111,9 @@ pub fn load_trainer(dir: &Path) -> Result<Box<dyn Trainer>> {
 pub fn load_policy(algo: Algo, dir: &Path) -> Result<Box<dyn DeterministicPolicy>> {
     common::checkpoint::verify_agent(dir)?;
     Ok(match algo {
-        Algo::Rdpg | Algo::Ddpg => Box::new(rdpg::RdpgPolicy::new(RdpgAgent::load_weights(dir)?)),
+        Algo::Rdpg | Algo::Ddpg | Algo::Sac => {
+            Box::new(rdpg::RdpgPolicy::new(RdpgAgent::load_weights(dir)?))
+        }
         Algo::Ppo => Box::new(ppo::PpoAgent::load_weights(dir)?),
     })
 }

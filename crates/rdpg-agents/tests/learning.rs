@@ -7,9 +7,11 @@
 //!
 //! TD3 with FORK's forward-looking actor must learn `Pendulum-v1`'s swing-up with its term in
 //! the actor's loss (a wrong sign or a broken model would stop it).
+//!
+//! SAC must learn the same swing-up with its temperature tracking the entropy target.
 
 use rdpg_agents::rdpg::{
-    ExplorationConfig, ForkConfig, OffPolicyConfig, OffPolicyTrainer, TargetNoise, Trunk,
+    ExplorationConfig, ForkConfig, OffPolicyConfig, OffPolicyTrainer, SacConfig, TargetNoise, Trunk,
 };
 use rdpg_agents::{Quiet, RdpgConfig, TrainConfig, TrainObserver, Trainer, UpdateStats};
 
@@ -173,5 +175,78 @@ fn td3_with_fork_learns_the_pendulum_swing_up() {
     assert!(
         after > -500.0,
         "TD3+FORK did not learn the swing-up: {before:.1} -> {after:.1}"
+    );
+}
+
+/// The temperature and the entropy SAC reports on its updates.
+#[derive(Default)]
+struct SacTrace {
+    alpha: Vec<f64>,
+    entropy: Vec<f64>,
+}
+
+impl TrainObserver for SacTrace {
+    fn on_update(&mut self, _step: u64, s: &UpdateStats) {
+        self.alpha.extend(s.extra.get("alpha"));
+        self.entropy.extend(s.extra.get("entropy"));
+    }
+}
+
+/// SAC (feed-forward) learns `Pendulum-v1`'s swing-up, its temperature falling from 1 as the
+/// policy's entropy approaches the target (-1).
+#[test]
+fn sac_learns_the_pendulum_swing_up() {
+    let train = TrainConfig {
+        env: "Pendulum-v1".into(),
+        total_steps: 8_000,
+        eval_every: 0,
+        eval_episodes: 10,
+        seed: 0,
+        ..TrainConfig::default()
+    };
+    let off = OffPolicyConfig {
+        warmup_steps: 1_000,
+        updates_per_step: 1.0,
+        replay_capacity: 10_000,
+        exploration: ExplorationConfig::None,
+        ..OffPolicyConfig::default()
+    };
+    let sac = RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![64] },
+        recurrent: false,
+        actor_hidden: 64,
+        critic_hidden: 64,
+        critic_action_fc: 0,
+        opt_len: 1,
+        update_len: 1,
+        scan_len: 0,
+        lr_actor: 1e-3,
+        lr_critic: 1e-3,
+        critic_l2: 0.0,
+        tau: 0.01,
+        twin_critic: true,
+        batch_size: 64,
+        device: rdpg_agents::DeviceSpec::Cpu,
+        num_threads: Some(1),
+        sac: Some(SacConfig {
+            lr_alpha: 1e-3,
+            ..SacConfig::default()
+        }),
+        ..RdpgConfig::default()
+    };
+    let mut t = OffPolicyTrainer::new(train, off, sac).unwrap();
+    let before = t.evaluate().unwrap().mean_return;
+    let mut seen = SacTrace::default();
+    t.run(u64::MAX, &mut seen).unwrap();
+    let after = t.evaluate().unwrap().mean_return;
+    let (a0, a1) = (seen.alpha[0], *seen.alpha.last().unwrap());
+    let h1 = seen.entropy[seen.entropy.len() - 100..].iter().sum::<f64>() / 100.0;
+    eprintln!("sac: eval {before:.1} -> {after:.1}; alpha {a0:.3} -> {a1:.3}; entropy {h1:.2}");
+    assert_eq!(seen.alpha.len(), 7_000);
+    assert!(a1 < 0.5 * a0, "the temperature did not fall: {a0} -> {a1}");
+    assert!(h1 < 2.0, "the policy's entropy stayed at {h1}");
+    assert!(
+        after > -500.0,
+        "SAC did not learn the swing-up: {before:.1} -> {after:.1}"
     );
 }

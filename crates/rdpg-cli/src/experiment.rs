@@ -2,14 +2,16 @@
 //!
 //! ```toml
 //! name = "hardcore-rdpg"          # free text, used in reports
-//! algo = "rdpg"                   # rdpg | ddpg | ppo
+//! algo = "rdpg"                   # rdpg | ddpg | sac | ppo
 //! [train]                         # rdpg_agents::TrainConfig: env, reward, budget, envs,
 //! env = "BipedalWalkerHardcore-v3"  # evaluation, seeds (every algorithm)
 //! total_steps = 1_000_000
-//! [off_policy]                    # rdpg_agents::OffPolicyConfig (rdpg, ddpg): warm-up,
+//! [off_policy]                    # rdpg_agents::OffPolicyConfig (rdpg, ddpg, sac): warm-up,
 //! warmup_steps = 10_000           # replay, exploration, injection
-//! [agent]                         # rdpg_agents::RdpgConfig (rdpg, ddpg)
+//! [agent]                         # rdpg_agents::RdpgConfig (rdpg, ddpg, sac)
 //! scan_len = 120
+//! [agent.sac]                     # rdpg_agents::rdpg::SacConfig (sac only; its exploration
+//! init_alpha = 1.0                #   defaults to kind = "none")
 //! [ppo]                           # rdpg_agents::PpoConfig (ppo)
 //! [run]                           # RunConfig: checkpoints, kept agents
 //! checkpoint_every = 50_000
@@ -23,6 +25,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
+use rdpg_agents::rdpg::SacConfig;
 use rdpg_agents::{Algo, Learner, OffPolicyConfig, PpoConfig, RdpgConfig, TrainConfig};
 use serde::{Deserialize, Serialize};
 
@@ -71,10 +74,10 @@ pub struct Experiment {
     /// The run: environment, reward, budget, environments, evaluation, seed.
     #[serde(default)]
     pub train: TrainConfig,
-    /// The off-policy loop (`rdpg`, `ddpg`): warm-up, replay, exploration, injection.
+    /// The off-policy loop (`rdpg`, `ddpg`, `sac`): warm-up, replay, exploration, injection.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub off_policy: Option<OffPolicyConfig>,
-    /// The off-policy learner's hyper-parameters (`rdpg`, `ddpg`).
+    /// The off-policy learner's hyper-parameters (`rdpg`, `ddpg`, `sac`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub agent: Option<RdpgConfig>,
     /// PPO's hyper-parameters (`ppo`).
@@ -104,6 +107,20 @@ impl Experiment {
                      section since rdpg 0.2",
                     path.display()
                 );
+            }
+        }
+        if value.get("algo").and_then(toml::Value::as_str) == Some(Algo::Sac.as_str()) {
+            // SAC explores by sampling its policy: no action noise unless the file asks.
+            let off = value
+                .entry("off_policy")
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            if let toml::Value::Table(off) = off {
+                off.entry("exploration").or_insert_with(|| {
+                    toml::Value::Table(toml::Table::from_iter([(
+                        "kind".to_string(),
+                        toml::Value::String("none".into()),
+                    )]))
+                });
             }
         }
         let mut exp: Experiment = value
@@ -138,7 +155,14 @@ impl Experiment {
             if self.ppo.is_some() {
                 bail!("[ppo] does not apply to algo = \"{algo}\" (use [agent] and [off_policy])");
             }
-            self.agent.get_or_insert_with(RdpgConfig::default);
+            let agent = self.agent.get_or_insert_with(RdpgConfig::default);
+            match (self.algo, agent.sac.is_some()) {
+                (Algo::Sac, false) => agent.sac = Some(SacConfig::default()),
+                (Algo::Rdpg | Algo::Ddpg, true) => {
+                    bail!("[agent.sac] applies to algo = \"sac\" only (this is \"{algo}\")")
+                }
+                _ => {}
+            }
             self.off_policy.get_or_insert_with(OffPolicyConfig::default);
         }
         Ok(())
@@ -157,6 +181,9 @@ impl Experiment {
             match (self.algo, agent.recurrent) {
                 (Algo::Ddpg, true) => bail!("algo = \"ddpg\" needs agent.recurrent = false"),
                 (Algo::Rdpg, false) => bail!("algo = \"rdpg\" needs agent.recurrent = true"),
+                (Algo::Sac, _) if agent.sac.is_none() => {
+                    bail!("algo = \"sac\" needs its [agent.sac] section")
+                }
                 _ => agent.validate()?,
             }
         }
@@ -167,7 +194,7 @@ impl Experiment {
     pub fn learner(&self) -> Learner {
         match self.algo {
             Algo::Ppo => Learner::Ppo(self.ppo.clone().unwrap_or_default()),
-            Algo::Rdpg | Algo::Ddpg => Learner::OffPolicy {
+            Algo::Rdpg | Algo::Ddpg | Algo::Sac => Learner::OffPolicy {
                 agent: self.agent.clone().unwrap_or_default(),
                 off_policy: self.off_policy.clone().unwrap_or_default(),
             },

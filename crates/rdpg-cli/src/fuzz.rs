@@ -472,7 +472,7 @@ minibatch_size = 64
 num_threads = 1
 "#;
 
-fn kinds() -> [(&'static str, Experiment); 3] {
+fn kinds() -> [(&'static str, Experiment); 4] {
     let load = |p: &str, sets: &[&str]| {
         let sets: Vec<String> = sets.iter().map(|s| (*s).to_string()).collect();
         Experiment::load(&repo(p), &sets).expect("a shipped config")
@@ -501,6 +501,19 @@ fn kinds() -> [(&'static str, Experiment); 3] {
                     "agent.actor_hidden=16",
                     "agent.critic_hidden=16",
                     "agent.trunk={ mlp = { hidden = [16] } }",
+                ],
+            ),
+        ),
+        (
+            "sac",
+            load(
+                "configs/memory-sac.toml",
+                &[
+                    "train.total_steps=300",
+                    "off_policy.warmup_steps=200",
+                    "agent.batch_size=8",
+                    "agent.actor_hidden=16",
+                    "agent.critic_hidden=16",
                 ],
             ),
         ),
@@ -662,14 +675,14 @@ fn run_reader(r: Reader) {
 
 #[test]
 fn fuzz_agent_directories() {
-    for kind in ["lstm", "ff", "ppo"] {
+    for kind in ["lstm", "ff", "sac", "ppo"] {
         run_reader(agent_reader(kind));
     }
 }
 
 #[test]
 fn fuzz_trainer_checkpoints() {
-    for kind in ["lstm", "ff", "ppo"] {
+    for kind in ["lstm", "ff", "sac", "ppo"] {
         run_reader(checkpoint_reader(kind));
     }
 }

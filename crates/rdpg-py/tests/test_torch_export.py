@@ -55,6 +55,17 @@ SYNTHETIC = {
         {"recurrent": False, "scan_len": 0, "opt_len": 1, "update_len": 1,
          "actor_head": [12], "core_skip": True},
     ),
+    "lidar-sac-lstm": (
+        "sac",
+        {"prev_action_obs": True},
+        {"tau": 0.005, "actor_head": [12], "core_skip": True, "sac": {}},
+    ),
+    "lidar-sac-ff": (
+        "sac",
+        {"hide_obs": [2]},
+        {"recurrent": False, "scan_len": 0, "opt_len": 1, "update_len": 1, "tau": 0.005,
+         "sac": {}},
+    ),
     "ppo": ("ppo", {"hide_obs": [2, 3], "prev_action_obs": True}, {"hidden": [32, 16]}),
 }
 
@@ -105,10 +116,14 @@ def _linear(name: str, in_dim: int, out_dim: int) -> dict[str, tuple[int, ...]]:
 
 
 def _rdpg_shapes(cfg: dict, obs_dim: int, act_dim: int) -> dict[str, tuple[int, ...]]:
-    """The variables of an RDPG/DDPG agent with a lidar trunk (`nets.rs`), critic included."""
+    """The variables of an RDPG/DDPG/SAC agent with a lidar trunk (`nets.rs`), critic included
+    (a SAC actor's output layer gives mean and log std; SAC has no target actor and a
+    `log_alpha`)."""
     shapes: dict[str, tuple[int, ...]] = {}
     ch, af = cfg["lidar_channels"], cfg["critic_action_fc"]
-    nets = (("actor", cfg["actor_hidden"], act_dim), ("critic", cfg["critic_hidden"], 1))
+    sac = "sac" in cfg
+    actor_out = 2 * act_dim if sac else act_dim
+    nets = (("actor", cfg["actor_hidden"], actor_out), ("critic", cfg["critic_hidden"], 1))
     for net, hidden, out in nets:
         shapes[f"{net}.trunk.lidar_conv.weight"] = (ch, 1, 3)
         shapes[f"{net}.trunk.lidar_conv.bias"] = (ch,)
@@ -129,7 +144,9 @@ def _rdpg_shapes(cfg: dict, obs_dim: int, act_dim: int) -> dict[str, tuple[int, 
         shapes |= _linear(f"{net}.head", width, out)
     shapes |= _linear("critic.act_fc", act_dim, af)
     if cfg.get("tau", 0.0) > 0:
-        shapes |= {f"target.{k}": v for k, v in shapes.items()}
+        shapes |= {f"target.{k}": v for k, v in shapes.items() if not (sac and k.startswith("actor"))}
+    if sac:
+        shapes["log_alpha"] = (1,)
     return shapes
 
 
@@ -341,8 +358,8 @@ def test_agents_it_cannot_build_are_value_errors_naming_the_file(tmp_path):
     agent = tmp_path / "agent"
     shutil.copytree(entry / "agent", agent)
 
-    with pytest.raises(ValueError, match="algo 'sac'"):
-        to_torch(agent, {**config, "algo": "sac"}, *bounds)
+    with pytest.raises(ValueError, match="algo 'tqc'"):
+        to_torch(agent, {**config, "algo": "tqc"}, *bounds)
     hidden = {**config, "train": {**config["train"], "hide_obs": [0]}}
     with pytest.raises(ValueError, match="agent.json: obs_dim 24"):
         to_torch(agent, hidden, *bounds)

@@ -17,15 +17,18 @@ pub enum Algo {
     Ddpg,
     /// PPO with an adaptive KL penalty (feed-forward, GAE).
     Ppo,
+    /// Soft actor-critic on the off-policy learner (recurrent or feed-forward).
+    Sac,
 }
 
 impl Algo {
-    /// The name used in experiment files, summaries and tables (`rdpg`, `ddpg`, `ppo`).
+    /// The name used in experiment files, summaries and tables (`rdpg`, `ddpg`, `ppo`, `sac`).
     pub fn as_str(self) -> &'static str {
         match self {
             Algo::Rdpg => "rdpg",
             Algo::Ddpg => "ddpg",
             Algo::Ppo => "ppo",
+            Algo::Sac => "sac",
         }
     }
 }

@@ -8,6 +8,8 @@ use rdpg_core::SequenceBatch;
 use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
+pub use super::acting::ActorState;
+use super::acting::Window;
 use super::config::RdpgConfig;
 use super::config::ScanMethod;
 use super::lstm::{scan_state, RecState};
@@ -20,195 +22,11 @@ use crate::common::tensor::{
 };
 use crate::error::{AgentError, Result};
 
-/// The recurrent state of the actor for a batch of environments, carried between
-/// [`RdpgAgent::act`] calls. Feed-forward agents carry an empty (zero-width) state.
-#[derive(Debug)]
-pub struct ActorState {
-    state: RecState,
-    n_envs: usize,
-    hidden: usize,
-    /// Window-of-k agents (`act_window`): the observations the state is re-encoded from.
-    window: Option<Window>,
-}
-
-/// The acting history of a window-of-k agent (`act_window = k`): each environment's last
-/// `k - 1` observations, oldest first and left-padded, and how many of them are real.
-#[derive(Debug)]
-struct Window {
-    k: usize,
-    obs_dim: usize,
-    /// `[n_envs, k - 1, obs_dim]` row-major.
-    hist: Vec<f32>,
-    len: Vec<usize>,
-}
-
-impl Window {
-    fn row(&mut self, env: usize) -> &mut [f32] {
-        let w = (self.k - 1) * self.obs_dim;
-        &mut self.hist[env * w..(env + 1) * w]
-    }
-
-    /// Appends `obs` (`[n_envs, obs_dim]`) to every environment's history.
-    fn push(&mut self, obs: &[f32]) {
-        let (d, k1) = (self.obs_dim, self.k - 1);
-        for (env, o) in obs.chunks_exact(d).enumerate() {
-            let row = self.row(env);
-            row.copy_within(d.., 0);
-            row[(k1 - 1) * d..].copy_from_slice(o);
-            self.len[env] = (self.len[env] + 1).min(k1);
-        }
-    }
-}
-
-impl ActorState {
-    /// Number of environments.
-    pub fn n_envs(&self) -> usize {
-        self.n_envs
-    }
-
-    /// Size of one environment's state as stored in the replay (`2 * hidden`: `h` then `c`).
-    pub fn state_dim(&self) -> usize {
-        2 * self.hidden
-    }
-
-    /// Zeroes every environment's state.
-    pub fn reset(&mut self) {
-        tch::no_grad(|| {
-            let _ = self.state.h.zero_();
-            let _ = self.state.c.zero_();
-        });
-        for env in 0..self.n_envs {
-            self.reset_window(env);
-        }
-    }
-
-    fn reset_window(&mut self, env: usize) {
-        if let Some(w) = &mut self.window {
-            w.row(env).fill(0.0);
-            w.len[env] = 0;
-        }
-    }
-
-    /// Values per environment in [`ActorState::to_vec`]: `2 * hidden` (`h` then `c`), or for
-    /// a window-of-k agent `1 + (k - 1) * obs_dim` (how many observations are real, then the
-    /// observations).
-    pub fn carried_len(&self) -> usize {
-        match &self.window {
-            Some(w) => 1 + (w.k - 1) * w.obs_dim,
-            None => 2 * self.hidden,
-        }
-    }
-
-    /// Overwrites environment `env`'s carried state with `v` ([`ActorState::carried_len`]
-    /// values, as [`ActorState::to_vec`] gives them), e.g. when a checkpoint resumes.
-    pub fn restore_env(&mut self, env: usize, v: &[f32]) -> Result<()> {
-        if v.len() != self.carried_len() || env >= self.n_envs {
-            return Err(AgentError::Shape(format!(
-                "actor state of {} values for env {env}, expected {} ({} envs)",
-                v.len(),
-                self.carried_len(),
-                self.n_envs
-            )));
-        }
-        match &mut self.window {
-            Some(w) => {
-                let len = v[0];
-                if !(len >= 0.0 && len <= (w.k - 1) as f32 && len.fract() == 0.0) {
-                    return Err(AgentError::Shape(format!(
-                        "window length {len} is not 0 to {}",
-                        w.k - 1
-                    )));
-                }
-                w.len[env] = len as usize;
-                w.row(env).copy_from_slice(&v[1..]);
-            }
-            None => self.set_env_state(env, v),
-        }
-        Ok(())
-    }
-
-    /// Zeroes environment `env`'s state (call when its episode ends).
-    pub fn reset_env(&mut self, env: usize) {
-        assert!(
-            env < self.n_envs,
-            "env {env} out of range ({} envs)",
-            self.n_envs
-        );
-        tch::no_grad(|| {
-            let _ = self.state.h.select(1, env as i64).zero_();
-            let _ = self.state.c.select(1, env as i64).zero_();
-        });
-        self.reset_window(env);
-    }
-
-    /// Environment `env`'s state, `[h (hidden), c (hidden)]`: what the replay stores as the
-    /// acting-time state of a step (take it *before* acting on that step).
-    pub fn env_state(&self, env: usize) -> Vec<f32> {
-        assert!(
-            env < self.n_envs,
-            "env {env} out of range ({} envs)",
-            self.n_envs
-        );
-        let hc = Tensor::cat(
-            &[
-                self.state.h.select(1, env as i64),
-                self.state.c.select(1, env as i64),
-            ],
-            1,
-        );
-        tensor_to_vec(&hc)
-    }
-
-    /// All states, `[n_envs, carried_len]` row-major: `h` then `c` per environment, or a
-    /// window-of-k agent's history ([`ActorState::carried_len`]).
-    pub fn to_vec(&self) -> Vec<f32> {
-        if let Some(w) = &self.window {
-            let row = (w.k - 1) * w.obs_dim;
-            return (0..self.n_envs)
-                .flat_map(|e| {
-                    std::iter::once(w.len[e] as f32)
-                        .chain(w.hist[e * row..(e + 1) * row].iter().copied())
-                })
-                .collect();
-        }
-        tensor_to_vec(&Tensor::cat(
-            &[self.state.h.squeeze_dim(0), self.state.c.squeeze_dim(0)],
-            1,
-        ))
-    }
-
-    /// Overwrites environment `env`'s state with `[h, c]` (`2 * hidden` values), e.g. the
-    /// random Gaussian start the authors' code used when acting.
-    pub fn set_env_state(&mut self, env: usize, hc: &[f32]) {
-        assert!(
-            env < self.n_envs,
-            "env {env} out of range ({} envs)",
-            self.n_envs
-        );
-        assert_eq!(hc.len(), 2 * self.hidden, "state size");
-        let h = self.hidden as i64;
-        let t = Tensor::from_slice(hc)
-            .to_kind(self.state.h.kind())
-            .to_device(self.state.h.device());
-        tch::no_grad(|| {
-            self.state
-                .h
-                .select(1, env as i64)
-                .squeeze_dim(0)
-                .copy_(&t.narrow(0, 0, h));
-            self.state
-                .c
-                .select(1, env as i64)
-                .squeeze_dim(0)
-                .copy_(&t.narrow(0, h, h));
-        });
-    }
-}
-
 /// Target copies of the networks (only when `tau > 0`).
 pub(super) struct Targets {
-    pub(super) actor_vs: VarStore,
-    pub(super) actor: Actor,
+    /// The target actor, with the critics' (`None` for SAC, whose bootstrap samples the
+    /// current policy).
+    pub(super) actor: Option<(VarStore, Actor)>,
     pub(super) critic_vs: Vec<VarStore>,
     pub(super) critics: Vec<Critic>,
     /// (target variable, online variable) pairs for the soft update: the actor's, then each
@@ -245,6 +63,25 @@ pub struct RdpgAgent {
     pub(super) critic0_params: usize,
     /// FORK's models (`config.fork`).
     pub(super) fork: Option<super::fork::ForkModels>,
+    /// SAC's temperature (`config.sac`).
+    pub(super) sac: Option<Temperature>,
+}
+
+/// SAC's temperature: `log alpha` (a variable of its own store, so that checkpoints hold it
+/// by name) and its Adam, the target entropy.
+pub(super) struct Temperature {
+    pub(super) vs: VarStore,
+    pub(super) log_alpha: Tensor,
+    pub(super) opt: Adam,
+    pub(super) target_entropy: f64,
+    pub(super) learn: bool,
+}
+
+impl Temperature {
+    /// `alpha = exp(log alpha)`.
+    pub(super) fn alpha(&self) -> f64 {
+        self.log_alpha.double_value(&[0]).exp()
+    }
 }
 
 impl std::fmt::Debug for RdpgAgent {
@@ -329,6 +166,8 @@ impl RdpgAgent {
         let targets = if cfg.tau > 0.0 {
             let (mut t_actor_vs, t_actor, mut t_critic_vs, t_critics) = build(device, false);
             t_actor_vs.copy(&actor_vs)?;
+            // SAC: no target actor (its bootstrap samples the current policy).
+            let with_actor = cfg.sac.is_none();
             for (t, s) in t_critic_vs.iter_mut().zip(&critic_vs) {
                 t.copy(s)?;
             }
@@ -339,7 +178,9 @@ impl RdpgAgent {
                     pairs.push((tv, sv[&name].shallow_clone()));
                 }
             };
-            push(&t_actor_vs, &actor_vs);
+            if with_actor {
+                push(&t_actor_vs, &actor_vs);
+            }
             for (t, s) in t_critic_vs.iter().zip(&critic_vs) {
                 push(t, s);
             }
@@ -349,8 +190,7 @@ impl RdpgAgent {
                 vs.freeze();
             }
             Some(Targets {
-                actor_vs: t_actor_vs,
-                actor: t_actor,
+                actor: with_actor.then_some((t_actor_vs, t_actor)),
                 critic_vs: t_critic_vs,
                 critics: t_critics,
                 pairs,
@@ -372,6 +212,24 @@ impl RdpgAgent {
         let critic_opt = Adam::new(adam(cfg.lr_critic, cfg.critic_l2), critic_params);
         let fork = cfg.fork.as_ref().map(|f| {
             super::fork::ForkModels::new(f, d, a, kind, device, adam(f.lr, 0.0), &mut rng)
+        });
+        let sac = cfg.sac.as_ref().map(|s| {
+            let mut vs = VarStore::new(device);
+            let _ = vs.root().var("log_alpha", &[1], tch::nn::Init::Const(0.0));
+            if kind == Kind::Double {
+                vs.double();
+            }
+            let mut log_alpha = sorted_vars(&vs).remove(0).1;
+            // Set in the agent's kind (an f32 constant would round `ln(init_alpha)`).
+            let _ = tch::no_grad(|| log_alpha.fill_(s.init_alpha.ln()));
+            let opt = Adam::new(adam(s.lr_alpha, 0.0), sorted_vars(&vs));
+            Temperature {
+                vs,
+                log_alpha,
+                opt,
+                target_entropy: s.target_entropy(act_dim),
+                learn: s.learn_alpha,
+            }
         });
 
         Ok(Self {
@@ -395,6 +253,7 @@ impl RdpgAgent {
             side: None,
             critic0_params,
             fork,
+            sac,
         })
     }
 
@@ -516,7 +375,7 @@ impl RdpgAgent {
     /// `[-1, 1]`; `state` advances by one step. Evaluation and updates use this actor. A wrong
     /// number of values or a non-finite one is an error (the state is left unchanged).
     pub fn act(&self, obs: &[f32], state: &mut ActorState) -> Result<Vec<f32>> {
-        self.act_with(&self.actor, obs, state)
+        self.act_with(&self.actor, obs, state, None)
     }
 
     /// Like [`RdpgAgent::act`], with the exploring copy of the actor (its parameters set by
@@ -524,10 +383,42 @@ impl RdpgAgent {
     /// with the trained actor. Action noise is the caller's business.
     pub fn act_exploring(&self, obs: &[f32], state: &mut ActorState) -> Result<Vec<f32>> {
         let actor = self.exploring.as_ref().map_or(&self.actor, |(_, a)| a);
-        self.act_with(actor, obs, state)
+        self.act_with(actor, obs, state, None)
     }
 
-    fn act_with(&self, actor: &Actor, obs: &[f32], state: &mut ActorState) -> Result<Vec<f32>> {
+    /// A SAC agent's exploring actions, sampled from its squashed Gaussian:
+    /// `a = tanh(m + s * eps)` with the caller's standard normal draws `eps`
+    /// (`[n_envs, act_dim]` row-major); otherwise like [`RdpgAgent::act`].
+    pub fn act_sampled(
+        &self,
+        obs: &[f32],
+        state: &mut ActorState,
+        eps: &[f32],
+    ) -> Result<Vec<f32>> {
+        if !self.actor.gaussian {
+            return Err(AgentError::Config {
+                field: "sac",
+                reason: "a deterministic actor has no distribution to sample".into(),
+            });
+        }
+        if eps.len() != state.n_envs * self.act_dim {
+            return Err(AgentError::Shape(format!(
+                "act_sampled: {} noise values, expected {} environment(s) x act_dim {}",
+                eps.len(),
+                state.n_envs,
+                self.act_dim
+            )));
+        }
+        self.act_with(&self.actor, obs, state, Some(eps))
+    }
+
+    fn act_with(
+        &self,
+        actor: &Actor,
+        obs: &[f32],
+        state: &mut ActorState,
+        eps: Option<&[f32]>,
+    ) -> Result<Vec<f32>> {
         let n = state.n_envs;
         if obs.len() != n * self.obs_dim {
             return Err(AgentError::Shape(format!(
@@ -544,6 +435,19 @@ impl RdpgAgent {
                 obs[k]
             )));
         }
+        // One step: the deterministic action, or (SAC, with `eps`) a sample.
+        let step = |o: &Tensor, h: &RecState| match eps {
+            None => actor.step(o, h),
+            Some(e) => {
+                let (x, y, next) = actor.features(o, h);
+                let (m, log_s) = actor.gaussian(&x, &y);
+                let e = Tensor::from_slice(e)
+                    .view([n as i64, self.act_dim as i64])
+                    .to_kind(self.kind)
+                    .to_device(self.device);
+                ((m + log_s.exp() * e).tanh(), next)
+            }
+        };
         let (a, next) = tch::no_grad(|| {
             let o = Tensor::from_slice(obs)
                 .view([n as i64, self.obs_dim as i64])
@@ -558,9 +462,9 @@ impl RdpgAgent {
                 let h0 = actor.core.zero_state(n as i64, self.kind, self.device);
                 let x = actor.input_seq(&hist);
                 let h = scan_state(&actor.core, &x, &w.len, &h0, ScanMethod::Grouped);
-                return actor.step(&o, &h);
+                return step(&o, &h);
             }
-            actor.step(&o, &state.state)
+            step(&o, &state.state)
         });
         // A finite observation far outside what the agent saw (e.g. 1e38) can overflow the
         // recurrent state: refused, with the state left as it was, rather than carried on as
@@ -679,7 +583,8 @@ impl RdpgAgent {
         Ok(())
     }
 
-    /// All network weights (targets included, prefixed `target.`; FORK's models last)
+    /// All network weights (targets included, prefixed `target.`; FORK's models, then SAC's
+    /// `log_alpha`, last)
     /// flattened to f64, by name;
     /// for tests and diagnostics.
     pub fn weights(&self) -> Vec<(String, Vec<f64>)> {
@@ -694,7 +599,9 @@ impl RdpgAgent {
             add(vs, "");
         }
         if let Some(t) = &self.targets {
-            add(&t.actor_vs, "target.");
+            if let Some((vs, _)) = &t.actor {
+                add(vs, "target.");
+            }
             for vs in &t.critic_vs {
                 add(vs, "target.");
             }
@@ -702,6 +609,9 @@ impl RdpgAgent {
         if let Some(f) = &self.fork {
             add(&f.dynamics_vs, "");
             add(&f.reward_vs, "");
+        }
+        if let Some(t) = &self.sac {
+            add(&t.vs, "");
         }
         out
     }

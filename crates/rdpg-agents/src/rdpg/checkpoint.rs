@@ -1,6 +1,6 @@
 //! Checkpoints of an [`RdpgAgent`]: `agent.json` (format, config, sizes, seed, update count,
 //! the agent's generator), `weights.safetensors` (networks, target networks prefixed
-//! `target.`; FORK's models) and `optim.safetensors` (Adam moments). Loading continues bit-identically.
+//! `target.`; FORK's models; SAC's `log_alpha`) and `optim.safetensors` (Adam moments). Loading continues bit-identically.
 
 use std::path::Path;
 
@@ -49,7 +49,7 @@ impl RdpgAgent {
             weights.extend(sorted_vars(vs));
         }
         if let Some(t) = &self.targets {
-            for vs in std::iter::once(&t.actor_vs).chain(&t.critic_vs) {
+            for vs in t.actor.iter().map(|(vs, _)| vs).chain(&t.critic_vs) {
                 weights.extend(
                     sorted_vars(vs)
                         .into_iter()
@@ -60,12 +60,18 @@ impl RdpgAgent {
         if let Some(f) = &self.fork {
             weights.extend(f.vars());
         }
+        if let Some(t) = &self.sac {
+            weights.extend(sorted_vars(&t.vs));
+        }
         write_tensors(&dir.join("weights.safetensors"), &weights)?;
         let mut optim = self.actor_opt.state("actor_opt.");
         optim.extend(self.critic_opt.state("critic_opt."));
         if let Some(f) = &self.fork {
             optim.extend(f.dynamics_opt.state("fork_dynamics_opt."));
             optim.extend(f.reward_opt.state("fork_reward_opt."));
+        }
+        if let Some(t) = &self.sac {
+            optim.extend(t.opt.state("alpha_opt."));
         }
         write_tensors(&dir.join("optim.safetensors"), &optim)?;
         let meta = CheckpointMeta {
@@ -137,7 +143,7 @@ impl RdpgAgent {
             restore_vars(vs, &weights, "")?;
         }
         if let Some(t) = &agent.targets {
-            for vs in std::iter::once(&t.actor_vs).chain(&t.critic_vs) {
+            for vs in t.actor.iter().map(|(vs, _)| vs).chain(&t.critic_vs) {
                 restore_vars(vs, &weights, "target.")?;
             }
         }
@@ -148,6 +154,9 @@ impl RdpgAgent {
                 .fork_bounds
                 .ok_or_else(|| ckpt_err(&meta_path, "a FORK agent without its fork_bounds"))?;
         }
+        if let Some(t) = &agent.sac {
+            restore_vars(&t.vs, &weights, "")?;
+        }
         if with_optim {
             let optim = read_tensors(&dir.join("optim.safetensors"))?;
             agent.actor_opt.load_state("actor_opt.", &optim)?;
@@ -155,6 +164,9 @@ impl RdpgAgent {
             if let Some(f) = &mut agent.fork {
                 f.dynamics_opt.load_state("fork_dynamics_opt.", &optim)?;
                 f.reward_opt.load_state("fork_reward_opt.", &optim)?;
+            }
+            if let Some(t) = &mut agent.sac {
+                t.opt.load_state("alpha_opt.", &optim)?;
             }
         }
         agent.updates = meta.updates;

@@ -102,6 +102,47 @@ impl Default for ForkConfig {
     }
 }
 
+/// Soft actor-critic (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"):
+/// the actor is a squashed Gaussian `a = tanh(u)`, `u ~ N(m(o), s(o)^2)`, whose output layer
+/// gives the mean and the log standard deviation (clamped to [`LOG_STD_RANGE`]); the targets and
+/// the actor loss carry the entropy bonus `-alpha log pi(a | o)`, and the temperature `alpha`
+/// is learned towards a target entropy or held fixed (see `sac.rs`). Acting samples the policy
+/// (no action noise); evaluation and a shipped policy act with the mean, `tanh(m(o))`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SacConfig {
+    /// The temperature `alpha` at the start (> 0). Stable-Baselines3: 1.0.
+    pub init_alpha: f64,
+    /// Learn `alpha` (its logarithm, by Adam at `lr_alpha`) so that the policy's entropy
+    /// tracks `target_entropy`; `false` keeps `init_alpha`.
+    pub learn_alpha: bool,
+    /// The entropy the temperature steers towards; `None`: `-act_dim` (Haarnoja et al.).
+    pub target_entropy: Option<f64>,
+    /// Adam learning rate of `log alpha`. Stable-Baselines3: the actor's (3e-4).
+    pub lr_alpha: f64,
+}
+
+impl Default for SacConfig {
+    fn default() -> Self {
+        Self {
+            init_alpha: 1.0,
+            learn_alpha: true,
+            target_entropy: None,
+            lr_alpha: 3e-4,
+        }
+    }
+}
+
+impl SacConfig {
+    /// The target entropy for `act_dim` actions: `target_entropy`, or `-act_dim`.
+    pub fn target_entropy(&self, act_dim: usize) -> f64 {
+        self.target_entropy.unwrap_or(-(act_dim as f64))
+    }
+}
+
+/// The range a SAC actor's log standard deviation is clamped to (Stable-Baselines3's).
+pub const LOG_STD_RANGE: (f64, f64) = (-20.0, 2.0);
+
 /// All hyper-parameters of [`RdpgAgent`](super::RdpgAgent). Every field has a default (see
 /// [`RdpgConfig::default`]); a JSON config may give any subset, unknown fields are rejected.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -242,6 +283,10 @@ pub struct RdpgConfig {
     /// term in the actor loss); none when `None`. Needs a feed-forward agent.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fork: Option<ForkConfig>,
+    /// Soft actor-critic (`algo = "sac"`): a squashed-Gaussian actor, entropy-regularised
+    /// targets, a temperature; `None`: the deterministic actor of RDPG / DDPG / TD3.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sac: Option<SacConfig>,
 }
 
 impl Default for RdpgConfig {
@@ -289,6 +334,7 @@ impl Default for RdpgConfig {
             parallel_twins: false,
             flush_denormal: true,
             fork: None,
+            sac: None,
         }
     }
 }
@@ -553,6 +599,62 @@ impl RdpgConfig {
             }
             finite_pos("fork", f.lr)?;
         }
+        if let Some(sac) = &self.sac {
+            self.validate_sac(sac)?;
+        }
+        Ok(())
+    }
+
+    /// SAC's own settings, and the deterministic learner's options that do not apply to it,
+    /// refused by name.
+    fn validate_sac(&self, sac: &SacConfig) -> Result<()> {
+        finite_pos("sac.init_alpha", sac.init_alpha)?;
+        finite_pos("sac.lr_alpha", sac.lr_alpha)?;
+        if sac.target_entropy.is_some_and(|h| !is_f32(h)) {
+            return Err(bad("sac.target_entropy", "must be finite"));
+        }
+        let refuse = |field: &'static str, why: &str| {
+            Err(bad(
+                field,
+                format!("does not apply to sac (algo = \"sac\"): {why}"),
+            ))
+        };
+        if self.target_noise.is_some() {
+            return refuse(
+                "target_noise",
+                "its bootstrap action is sampled from the policy",
+            );
+        }
+        if self.policy_delay != 1 {
+            return refuse(
+                "policy_delay",
+                "the actor and the temperature step on every update",
+            );
+        }
+        if self.fork.is_some() {
+            return refuse("fork", "FORK's term is written for a deterministic actor");
+        }
+        if self.parallel_twins {
+            return refuse("parallel_twins", "its update runs on one thread");
+        }
+        if !self.actor_uses_updated_critic {
+            return refuse(
+                "actor_uses_updated_critic",
+                "false: its actor reads the critics after their step",
+            );
+        }
+        if self.tau == 0.0 {
+            return refuse(
+                "tau",
+                "0 (no target critics): SAC bootstraps from target critics",
+            );
+        }
+        if self.critic_target != CriticTarget::TailBootstrap {
+            return refuse(
+                "critic_target",
+                "only the tail-step bootstrap (\"tail_bootstrap\") has a soft version here",
+            );
+        }
         Ok(())
     }
 
@@ -565,7 +667,7 @@ impl RdpgConfig {
     }
 
     /// The number of values of the actor and critic(s) this config builds for an environment
-    /// of these sizes, target copies included (FORK's models not counted), computed without
+    /// of these sizes, target copies and SAC's temperature included (FORK's models not counted), computed without
     /// allocating: what a loader compares with a weights file before it builds anything.
     pub fn param_count(&self, obs_dim: usize, act_dim: usize) -> f64 {
         let (d, a) = (obs_dim as f64, act_dim as f64);
@@ -608,7 +710,9 @@ impl RdpgConfig {
         };
         let e = self.embed_dim() as f64;
         let (ha, hc) = (self.actor_hidden as f64, self.critic_hidden as f64);
-        let actor = trunk(d) + core(e, ha) + head(e, ha, &self.actor_head, a);
+        // A SAC actor's output layer gives the mean and the log standard deviation.
+        let out = if self.sac.is_some() { 2.0 * a } else { a };
+        let actor = trunk(d) + core(e, ha) + head(e, ha, &self.actor_head, out);
         let af = self.critic_action_fc as f64;
         let critic = match self.critic_action_fc {
             0 => trunk(d + a),
@@ -617,7 +721,11 @@ impl RdpgConfig {
             + head(e + af, hc, &self.critic_head, 1.0);
         let critics = if self.twin_critic { 2.0 } else { 1.0 };
         let copies = if self.tau > 0.0 { 2.0 } else { 1.0 };
-        copies * (actor + critics * critic)
+        match self.sac {
+            // No target actor (the bootstrap samples the policy); `log alpha`.
+            Some(_) => actor + copies * critics * critic + 1.0,
+            None => copies * (actor + critics * critic),
+        }
     }
 
     /// Checks that an environment with these sizes fits the trunk.

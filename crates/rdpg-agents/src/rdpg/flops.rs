@@ -131,7 +131,13 @@ fn nets(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> (Net, Net) {
     let actor = Net {
         trunk: trunk_shapes(cfg, d),
         core: core(e, cfg.actor_hidden),
-        head: head(e, cfg.actor_hidden, &cfg.actor_head, a),
+        // A SAC actor's output layer gives the mean and the log standard deviation.
+        head: head(
+            e,
+            cfg.actor_hidden,
+            &cfg.actor_head,
+            if cfg.sac.is_some() { 2 * a } else { a },
+        ),
     };
     let af = cfg.critic_action_fc as i64;
     let mut trunk = trunk_shapes(cfg, if af == 0 { d + a } else { d });
@@ -158,6 +164,9 @@ pub fn update_flops(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> PhaseFl
     let rec = cfg.recurrent;
     let per_step = cfg.critic_target == CriticTarget::PerStepTd0;
     let turn = 1.0 / cfg.policy_delay as f64;
+    if cfg.sac.is_some() {
+        return sac_flops(cfg, &actor, &critic);
+    }
 
     // With target networks the behaviour actor's scan and states serve the actor's turn only.
     let behaviour = if targets { turn } else { 1.0 };
@@ -213,6 +222,33 @@ pub fn update_flops(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> PhaseFl
                 + n * (l - 1.0) * critic.core());
     }
     f.actor_step = turn * n * l * (3.0 * actor.all() + 2.0 * critic.all());
+    f
+}
+
+/// [`update_flops`] for SAC (`sac.rs`): the actor, every critic and every target critic
+/// scanned; the actor along the window and the target critics at the tail; the critics'
+/// forward and backward passes; every critic rescanned after its step; the actor's loss
+/// through every critic.
+fn sac_flops(cfg: &RdpgConfig, actor: &Net, critic: &Net) -> PhaseFlops {
+    let n = cfg.batch_size as f64;
+    let (s, l) = (cfg.scan_len as f64, cfg.opt_len as f64);
+    let u = cfg.update_len.min(cfg.opt_len) as f64;
+    let twins = if cfg.twin_critic { 2.0 } else { 1.0 };
+    let mut f = PhaseFlops::default();
+    let along = if cfg.recurrent { n * (l + 1.0) } else { n };
+    if cfg.recurrent {
+        f.scan =
+            n * s * (actor.trunk() + actor.core() + 2.0 * twins * (critic.trunk() + critic.core()));
+        f.critic_rescan = twins
+            * (n * s * (critic.trunk() + critic.core())
+                + n * l * critic.trunk()
+                + n * (l - 1.0) * critic.core());
+    }
+    f.window_nograd = n * (l + 1.0) * (actor.trunk() + actor.core())
+        + n * actor.head()
+        + twins * along * critic.all();
+    f.critic_step = 3.0 * twins * n * u * critic.all();
+    f.actor_step = n * l * (3.0 * actor.all() + 2.0 * twins * critic.all());
     f
 }
 

@@ -1,5 +1,6 @@
-//! The recurrent deterministic policy gradient (RDPG) of Song et al. (ICARCV 2018) and its
-//! feed-forward DDPG variant (the same agent with `recurrent = false`).
+//! The recurrent deterministic policy gradient (RDPG) of Song et al. (ICARCV 2018), its
+//! feed-forward DDPG variant (the same agent with `recurrent = false`) and soft actor-critic
+//! on the same machinery (`config.sac`, recurrent or not).
 //!
 //! * [`config`]: the learner's hyper-parameters ([`RdpgConfig`]);
 //!   [`off_policy`]: the loop's ([`OffPolicyConfig`]: warm-up, replay, noise, injection).
@@ -9,12 +10,14 @@
 //! * [`update`]: Algorithm 1's `Update()`, top to bottom (its two-thread schedule in
 //!   `twins.rs`, the batch it reads in `prepared.rs`); [`profile`]: its per-phase times;
 //!   [`fork`]: FORK's models and forward-looking actor term (feed-forward agents);
+//!   `sac.rs`: soft actor-critic's update, top to bottom;
 //!   [`checkpoint`]: save and load.
 //! * [`trainer`]: [`OffPolicyTrainer`], Algorithm 1's outer loop; [`inject`]: experience
 //!   injection from teacher files.
 //! * [`bench`](mod@bench): synthetic batches and the update benchmark; [`flops`]: the
 //!   update's counted FLOP and a matrix-product reference at its layer shapes.
 
+mod acting;
 pub mod agent;
 pub mod bench;
 pub mod checkpoint;
@@ -27,13 +30,15 @@ pub mod nets;
 pub mod off_policy;
 mod prepared;
 pub mod profile;
+mod sac;
 pub mod trainer;
 mod twins;
 pub mod update;
 
 pub use agent::{ActorState, RdpgAgent};
 pub use config::{
-    memory_task_config, CriticTarget, ForkConfig, RdpgConfig, ScanMethod, TargetNoise, Trunk,
+    memory_task_config, CriticTarget, ForkConfig, RdpgConfig, SacConfig, ScanMethod, TargetNoise,
+    Trunk,
 };
 pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
 pub use profile::PhaseTimes;

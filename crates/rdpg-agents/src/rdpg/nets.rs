@@ -28,7 +28,7 @@
 use tch::nn::{self, Module};
 use tch::Tensor;
 
-use super::config::{RdpgConfig, Trunk};
+use super::config::{RdpgConfig, Trunk, LOG_STD_RANGE};
 use super::lstm::{Core, RecState};
 use crate::common::tensor::{linear_handle, Activation, Mlp, HEAD_INIT};
 
@@ -204,7 +204,9 @@ fn head_linear(p: nn::Path, in_dim: i64, out_dim: i64) -> nn::Linear {
     )
 }
 
-/// The policy `mu(o_t | h_{t-1})`: trunk -> core -> FC + tanh.
+/// The policy `mu(o_t | h_{t-1})`: trunk -> core -> FC + tanh. A SAC actor (`gaussian`) is a
+/// squashed Gaussian: its output layer gives `[m, log s]` (`2A` values) and its deterministic
+/// action is `tanh(m)`.
 #[derive(Debug)]
 pub struct Actor {
     /// Observation embedding.
@@ -217,6 +219,10 @@ pub struct Actor {
     pub skip: bool,
     /// Output layer (before tanh).
     pub head: nn::Linear,
+    /// Whether the output layer gives a Gaussian's mean and log standard deviation (SAC).
+    pub gaussian: bool,
+    /// Action size `A`.
+    pub act_dim: i64,
 }
 
 impl Actor {
@@ -228,6 +234,8 @@ impl Actor {
             head_mlp: self.head_mlp.shallow_clone(),
             skip: self.skip,
             head: linear_handle(&self.head),
+            gaussian: self.gaussian,
+            act_dim: self.act_dim,
         }
     }
 
@@ -237,13 +245,17 @@ impl Actor {
         let e = cfg.embed_dim() as i64;
         let h = cfg.actor_hidden as i64;
         let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
-        let (head_mlp, head) = head_layers(p, cfg.core_skip, e, h, &cfg.actor_head, act_dim);
+        let gaussian = cfg.sac.is_some();
+        let out = if gaussian { 2 * act_dim } else { act_dim };
+        let (head_mlp, head) = head_layers(p, cfg.core_skip, e, h, &cfg.actor_head, out);
         Self {
             trunk,
             core,
             head_mlp,
             skip: cfg.core_skip,
             head,
+            gaussian,
+            act_dim,
         }
     }
 
@@ -254,10 +266,29 @@ impl Actor {
 
     /// Core input and output -> action: `x [.., E]`, `y [.., H]` -> `[.., A]` in `(-1, 1)`
     /// (`x` is read only with `core_skip`).
+    /// For a SAC actor, the deterministic action `tanh(m)`.
     pub fn head(&self, x: &Tensor, y: &Tensor) -> Tensor {
-        self.head
-            .forward(&self.head_mlp.forward(&head_input(self.skip, x, y)))
-            .tanh()
+        let out = self
+            .head
+            .forward(&self.head_mlp.forward(&head_input(self.skip, x, y)));
+        match self.gaussian {
+            true => out.narrow(-1, 0, self.act_dim).tanh(),
+            false => out.tanh(),
+        }
+    }
+
+    /// A SAC actor's Gaussian before the squashing: `x [.., E]`, `y [.., H]` -> (mean
+    /// `[.., A]`, log standard deviation `[.., A]` clamped to [`LOG_STD_RANGE`]).
+    pub fn gaussian(&self, x: &Tensor, y: &Tensor) -> (Tensor, Tensor) {
+        debug_assert!(self.gaussian, "a deterministic actor has no Gaussian");
+        let out = self
+            .head
+            .forward(&self.head_mlp.forward(&head_input(self.skip, x, y)));
+        let (lo, hi) = LOG_STD_RANGE;
+        (
+            out.narrow(-1, 0, self.act_dim),
+            out.narrow(-1, self.act_dim, self.act_dim).clamp(lo, hi),
+        )
     }
 
     /// Actions along a sequence: `obs [B, T, D]` from `h0` -> (`[B, T, A]`, final state).
@@ -269,9 +300,16 @@ impl Actor {
 
     /// One step for a batch of environments: `obs [B, D]` -> (`[B, A]`, next state).
     pub fn step(&self, obs: &Tensor, s: &RecState) -> (Tensor, RecState) {
+        let (x, y, s) = self.features(obs, s);
+        (self.head(&x, &y), s)
+    }
+
+    /// One step's core input and output: `obs [B, D]` -> (`x [B, E]`, `y [B, H]`, next
+    /// state), what [`Actor::head`] and [`Actor::gaussian`] read.
+    pub fn features(&self, obs: &Tensor, s: &RecState) -> (Tensor, Tensor, RecState) {
         let x = self.trunk.forward(obs);
         let (y, s) = self.core.step(&x, s);
-        (self.head(&x, &y), s)
+        (x, y, s)
     }
 }
 

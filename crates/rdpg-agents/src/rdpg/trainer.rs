@@ -1,4 +1,4 @@
-//! The off-policy training loop shared by RDPG and DDPG (Algorithm 1's outer loop).
+//! The off-policy training loop shared by RDPG, DDPG and SAC (Algorithm 1's outer loop).
 //!
 //! Acting runs on the shared [`Collector`] (N environments on worker threads) with batched
 //! policy inference; every environment keeps its own recurrent actor state and exploration
@@ -72,7 +72,29 @@ struct LoopState {
     param_noise: Option<ParamNoiseState>,
 }
 
-/// Off-policy training of an [`RdpgAgent`] (recurrent RDPG or feed-forward DDPG).
+/// SAC explores by sampling its policy: action noise and parameter noise are refused for it,
+/// by name.
+fn check_sac_exploration(off: &OffPolicyConfig, agent: &RdpgConfig) -> Result<()> {
+    if agent.sac.is_none() {
+        return Ok(());
+    }
+    let why = "does not apply to sac, which explores by sampling its policy";
+    if off.exploration != ExplorationConfig::None {
+        return Err(AgentError::Config {
+            field: "off_policy.exploration",
+            reason: format!("{why} (set kind = \"none\")"),
+        });
+    }
+    if off.param_noise.is_some() {
+        return Err(AgentError::Config {
+            field: "off_policy.param_noise",
+            reason: why.into(),
+        });
+    }
+    Ok(())
+}
+
+/// Off-policy training of an [`RdpgAgent`] (recurrent RDPG, feed-forward DDPG, or SAC).
 pub struct OffPolicyTrainer {
     cfg: TrainConfig,
     off: OffPolicyConfig,
@@ -91,6 +113,7 @@ impl OffPolicyTrainer {
     pub fn new(cfg: TrainConfig, off: OffPolicyConfig, agent_cfg: RdpgConfig) -> Result<Self> {
         cfg.validate()?;
         off.validate()?;
+        check_sac_exploration(&off, &agent_cfg)?;
         if agent_cfg.flush_denormal {
             // Before any tensor work: libtorch's worker threads, created at its first parallel
             // region, inherit this thread's mode (the environments step in IEEE mode anyway).
@@ -180,6 +203,7 @@ impl OffPolicyTrainer {
         let off: OffPolicyConfig = read_json(&dir.join("off_policy.json"))?;
         off.validate()?;
         let mut agent = RdpgAgent::load(dir.join("agent"))?;
+        check_sac_exploration(&off, agent.config())?;
         let replay_path = dir.join("replay.bin");
         let replay: EpisodicReplay = if header.format == 3 {
             EpisodicReplay::try_from(read_bin::<ReplayFormat3>(&replay_path)?)
@@ -397,7 +421,16 @@ impl Trainer for OffPolicyTrainer {
                 self.perturb_actor_if_due()?;
             }
             let flat: Vec<f32> = self.collector.obs().concat();
-            let mu = self.agent.act_exploring(&flat, &mut self.act_state)?;
+            // SAC samples its policy (a = tanh(m + s eps)); the others act deterministically
+            // and add their action noise below.
+            let mu = if self.agent.config().sac.is_some() && !warm {
+                let eps: Vec<f32> = (0..n * act_dim)
+                    .map(|_| self.st.rng.standard_normal() as f32)
+                    .collect();
+                self.agent.act_sampled(&flat, &mut self.act_state, &eps)?
+            } else {
+                self.agent.act_exploring(&flat, &mut self.act_state)?
+            };
             if let Some(clean) = self.clean_state.as_mut() {
                 self.agent.act(&flat, clean)?;
             }

@@ -145,16 +145,19 @@ impl RdpgAgent {
         }
         let method = self.cfg.scan_method;
         let t = self.targets.as_ref().expect("validated: target networks");
+        let t_actor = self
+            .target_actor()
+            .expect("validated: a deterministic actor (not SAC) has a target actor");
         let actor_init = self.actor_init(p);
         let (c1, t1, ta, p1, init1) = (
             self.critics[1].shallow_clone(),
             t.critics[1].shallow_clone(),
-            t.actor.shallow_clone(),
+            t_actor.shallow_clone(),
             p.shallow_clone(),
             actor_init.shallow_clone(),
         );
         // The actor (behaviour or target) scanned here.
-        let here = if with_actor { &self.actor } else { &t.actor };
+        let here = if with_actor { &self.actor } else { t_actor };
         let ((h_a, h0, th0), (h1, th1, h_ta)) = side.run(
             self.cfg.flush_denormal,
             || {
@@ -214,9 +217,9 @@ impl RdpgAgent {
         let ftz = self.cfg.flush_denormal;
         let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
         let (mut a_tail, actor_states) = {
-            let t = self.targets.as_ref().expect("validated: target networks");
+            let t_actor = self.target_actor().expect("validated: target networks");
             let h = sc.target_actor.as_ref().expect("scanned with the targets");
-            let main = || tch::no_grad(|| tail_action(&t.actor, p, h));
+            let main = || tch::no_grad(|| tail_action(t_actor, p, h));
             if let Some(h_actor) = sc.actor.as_ref().filter(|_| need_states) {
                 let (actor, p1, h1) = (
                     self.actor.shallow_clone(),

@@ -99,6 +99,9 @@ impl RdpgAgent {
         if self.cfg.flush_denormal {
             crate::common::tensor::set_flush_denormal(true);
         }
+        if self.sac.is_some() {
+            return Ok(self.update_sac(batch)); // soft actor-critic's update (sac.rs)
+        }
         if self.cfg.parallel_twins {
             return Ok(self.update_parallel(batch)); // the same update on two threads (twins.rs)
         }
@@ -331,7 +334,7 @@ impl RdpgAgent {
         sc: &Scanned,
     ) -> (Option<(Tensor, Tensor)>, Tensor) {
         let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
-        if let (Some(t), Some(h)) = (&self.targets, &sc.target_actor) {
+        if let (Some(ta), Some(h)) = (self.target_actor(), &sc.target_actor) {
             // The bootstrap comes from mu': the behaviour actor runs for its states only, on
             // the actor's turn (when it was scanned).
             let states = sc
@@ -339,7 +342,7 @@ impl RdpgAgent {
                 .as_ref()
                 .filter(|_| need_states)
                 .map(|h| actor_states(&self.actor, p, h));
-            return (states, tail_action(&t.actor, p, h));
+            return (states, tail_action(ta, p, h));
         }
         // No target actor: the behaviour actor's run along the window (l + 1 slots) gives both;
         // its output at the tail slot `len_n` is mu(o_tail | h_{len-1}).
@@ -408,8 +411,8 @@ impl RdpgAgent {
     /// are the target networks when `tau > 0`, else the behaviour networks.
     pub(super) fn per_step_targets(&mut self, p: &Prepared, sc: &Scanned) -> Tensor {
         let (n, l) = (p.n, p.l);
-        let (actor, actor_h) = match (&self.targets, &sc.target_actor) {
-            (Some(t), Some(h)) => (&t.actor, h),
+        let (actor, actor_h) = match (self.target_actor(), &sc.target_actor) {
+            (Some(ta), Some(h)) => (ta, h),
             _ => (&self.actor, sc.actor()),
         };
         let (mu, _) = actor.forward_seq(&p.obs_win, actor_h); // [N, l+1, A]
@@ -482,9 +485,8 @@ impl RdpgAgent {
                 .map(|c| scan_critic(c, p, method))
                 .collect(),
             target_actor: self
-                .targets
-                .as_ref()
-                .map(|t| scan_target_actor(&t.actor, p, &actor_init, method)),
+                .target_actor()
+                .map(|ta| scan_target_actor(ta, p, &actor_init, method)),
             target_critics: self.targets.as_ref().map_or_else(Vec::new, |t| {
                 t.critics
                     .iter()
@@ -492,6 +494,11 @@ impl RdpgAgent {
                     .collect()
             }),
         })
+    }
+
+    /// The target actor, if there is one (`tau > 0`, not SAC).
+    pub(super) fn target_actor(&self) -> Option<&Actor> {
+        self.targets.as_ref()?.actor.as_ref().map(|(_, a)| a)
     }
 
     /// Whether this update reads the behaviour actor's scan: on the actor's turn, or always
@@ -512,15 +519,20 @@ impl RdpgAgent {
     /// (`h_{i-1}`, `c_{i-1}`, each `[N, l, H]`), from its scanned state (call without
     /// gradient).
     pub(super) fn critic_states(&self, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
-        let critic = &self.critics[0];
-        if !critic.core.is_recurrent() {
-            // Zero-width states, `[N, l, 0]`: nothing to run.
-            let z = h.h.new_zeros([p.n, p.l, 0], (self.kind, self.device));
-            return (z.shallow_clone(), z);
-        }
-        let x = critic.input_seq(&p.obs_win.narrow(1, 0, p.l), &p.act_win);
-        critic.core.states_before(&x, h)
+        critic_states(&self.critics[0], p, h)
     }
+}
+
+/// `critic`'s states before each optimisation step along the replayed actions (`h_{i-1}`,
+/// `c_{i-1}`, each `[N, l, H]`), from its scanned state `h` (call without gradient).
+pub(super) fn critic_states(critic: &Critic, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
+    if !critic.core.is_recurrent() {
+        // Zero-width states, `[N, l, 0]`: nothing to run.
+        let z = h.h.new_zeros([p.n, p.l, 0], (h.h.kind(), h.h.device()));
+        return (z.shallow_clone(), z);
+    }
+    let x = critic.input_seq(&p.obs_win.narrow(1, 0, p.l), &p.act_win);
+    critic.core.states_before(&x, h)
 }
 
 /// `theta' <- theta' + tau (theta - theta')` for each (target, online) pair.

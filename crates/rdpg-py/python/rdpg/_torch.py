@@ -224,6 +224,17 @@ class _Head(nn.Module):
         return self.layers(y)
 
 
+class _Mean(nn.Module):
+    """The mean half ``[..., :act_dim]`` of a SAC actor's output ``[mean, log_std]``."""
+
+    def __init__(self, act_dim: int):
+        super().__init__()
+        self.act_dim = act_dim
+
+    def forward(self, out: Tensor) -> Tensor:
+        return out[..., : self.act_dim]
+
+
 class _FeedForwardActor(nn.Module):
     """A DDPG/TD3 actor: trunk, FC + ReLU core, head."""
 
@@ -375,7 +386,7 @@ def _read(agent_dir: Path, name: str) -> bytes:
 def _rdpg_actor(
     w: _Weights, cfg: Dict[str, Any], view_dim: int, act_dim: int, base: Dict[str, Any]
 ) -> _Policy:
-    """The actor of an RDPG/DDPG agent (``actor.*``) as the module of its kind."""
+    """The actor of an RDPG/DDPG/SAC agent (``actor.*``) as the module of its kind."""
     hidden = cfg["actor_hidden"]
     trunk, embed = _trunk(w, cfg, view_dim)
     core = _Lstm(w, embed, hidden) if cfg["recurrent"] else w.linear("actor.core.fc", embed, hidden)
@@ -384,7 +395,12 @@ def _rdpg_actor(
     for i, h in enumerate(cfg["actor_head"]):
         layers += [w.linear(f"actor.head_mlp.fc{i}", width, h), nn.ReLU()]
         width = h
-    layers += [w.linear("actor.head", width, act_dim), nn.Tanh()]
+    if cfg.get("sac") is None:
+        layers += [w.linear("actor.head", width, act_dim), nn.Tanh()]
+    else:
+        # A SAC actor's output layer gives the mean and the log standard deviation; the
+        # deterministic policy is tanh(mean).
+        layers += [w.linear("actor.head", width, 2 * act_dim), _Mean(act_dim), nn.Tanh()]
     head = _Head(bool(cfg["core_skip"]), nn.Sequential(*layers))
     if not cfg["recurrent"]:
         return FeedForwardPolicy(_FeedForwardActor(trunk, core, head), **base)
@@ -412,8 +428,10 @@ def to_torch(
     that do not fit each other, is a ``ValueError`` naming the file (and tensor).
     """
     algo = config.get("algo")
-    if algo not in ("rdpg", "ddpg", "ppo"):
-        raise ValueError(f"config.toml: algo {algo!r}, expected \"rdpg\", \"ddpg\" or \"ppo\"")
+    if algo not in ("rdpg", "ddpg", "sac", "ppo"):
+        raise ValueError(
+            f"config.toml: algo {algo!r}, expected \"rdpg\", \"ddpg\", \"sac\" or \"ppo\""
+        )
     agent_dir = Path(agent_dir)
     meta_path = agent_dir / "agent.json"
     meta = json.loads(_read(agent_dir, "agent.json"))

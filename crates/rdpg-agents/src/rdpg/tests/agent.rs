@@ -328,7 +328,7 @@ fn param_count_is_exact() {
         let mut vs = vec![&agent.actor_vs];
         vs.extend(&agent.critic_vs);
         if let Some(t) = &agent.targets {
-            vs.push(&t.actor_vs);
+            vs.extend(t.actor.iter().map(|(vs, _)| vs));
             vs.extend(&t.critic_vs);
         }
         let real: i64 = vs

@@ -370,7 +370,7 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
                 .chain(
                     a.targets
                         .iter()
-                        .flat_map(|t| std::iter::once(&t.actor_vs).chain(&t.critic_vs)),
+                        .flat_map(|t| t.actor.iter().map(|(vs, _)| vs).chain(&t.critic_vs)),
                 )
                 .flat_map(sorted_vars)
                 .map(|(n, t)| (n, to_vec64(&t)))

@@ -19,6 +19,7 @@ use crate::common::UpdateStats;
 mod agent;
 mod fork;
 mod gradients;
+mod sac;
 mod sequences;
 mod targets;
 

@@ -322,11 +322,9 @@ fn window_tail_reencodes_the_steps_before_the_tail_from_zero() {
     assert!(b.scan_len.iter().any(|&x| x < cfg.scan_len));
     let p = agent.prepare(&b);
     let t = agent.targets.as_ref().unwrap();
-    let unused = t
-        .actor
-        .core
-        .zero_state(b.n as i64, Kind::Double, Device::Cpu);
-    let a_tail = tch::no_grad(|| tail_action(&t.actor, &p, &unused));
+    let ta = agent.target_actor().unwrap();
+    let unused = ta.core.zero_state(b.n as i64, Kind::Double, Device::Cpu);
+    let a_tail = tch::no_grad(|| tail_action(ta, &p, &unused));
     let unused_c = t.critics[0]
         .core
         .zero_state(b.n as i64, Kind::Double, Device::Cpu);
@@ -342,10 +340,8 @@ fn window_tail_reencodes_the_steps_before_the_tail_from_zero() {
         let o = Tensor::from_slice(&o)
             .view([1, rows, OBS as i64])
             .to_kind(Kind::Double);
-        let (mu, _) = tch::no_grad(|| {
-            t.actor
-                .forward_seq(&o, &t.actor.core.zero_state(1, Kind::Double, Device::Cpu))
-        });
+        let (mu, _) =
+            tch::no_grad(|| ta.forward_seq(&o, &ta.core.zero_state(1, Kind::Double, Device::Cpu)));
         let a_ref = mu.select(1, rows - 1);
         assert_close(
             &to_vec64(&a_tail.select(0, i as i64)),

@@ -335,7 +335,7 @@ fn per_step_td0_targets_match_a_direct_computation() {
                     .to_kind(Kind::Double)
                     .view([1, i as i64 + 2, OBS as i64]);
             let z = |h: i64| RecState::zeros(1, h, Kind::Double, Device::Cpu);
-            let (mu, _) = tch::no_grad(|| t.actor.forward_seq(&obs, &z(4)));
+            let (mu, _) = tch::no_grad(|| agent.target_actor().unwrap().forward_seq(&obs, &z(4)));
             let next_a = mu.select(1, i as i64 + 1).view([1, 1, ACT as i64]);
             let acts = Tensor::from_slice(&b.actions[w * steps * ACT..(w * steps + i + 1) * ACT])
                 .to_kind(Kind::Double)
@@ -396,8 +396,9 @@ fn feed_forward_bootstrap_reads_the_tail_observation_alone() {
         let o = Tensor::from_slice(&o)
             .view([1, OBS as i64])
             .to_kind(Kind::Double);
-        let none = t.actor.core.zero_state(1, Kind::Double, Device::Cpu);
-        let a_ref = tch::no_grad(|| t.actor.step(&o, &none).0);
+        let ta = agent.target_actor().unwrap();
+        let none = ta.core.zero_state(1, Kind::Double, Device::Cpu);
+        let a_ref = tch::no_grad(|| ta.step(&o, &none).0);
         let a_i = a_tail.select(0, i as i64).unsqueeze(0);
         assert_close(&to_vec64(&a_i), &to_vec64(&a_ref), 1e-12, "a_tail");
         let q_ref: Vec<f64> = t

@@ -1,0 +1,347 @@
+//! Soft actor-critic: one update against the same update written in PyTorch
+//! (`scripts/reference/sac_update.py`), the squashed Gaussian's log-probability, the soft
+//! tail-step target against `rdpg_core::targets`, the temperature, acting, checkpoints and the
+//! options SAC refuses.
+
+use std::collections::HashMap;
+
+use serde_json::Value;
+
+use super::*;
+use crate::rdpg::config::SacConfig;
+use crate::rdpg::sac::squashed_sample;
+
+const FIXTURE: &str = include_str!("../../../../../tests/fixtures/sac_update.json");
+
+fn f64s(v: &Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+/// Every variable of the agent (targets prefixed `target.`), by name, to write into.
+fn vars_by_name(agent: &RdpgAgent) -> HashMap<String, Tensor> {
+    let mut out = HashMap::new();
+    let mut add = |vs: &VarStore, prefix: &str| {
+        for (n, t) in sorted_vars(vs) {
+            out.insert(format!("{prefix}{n}"), t);
+        }
+    };
+    add(&agent.actor_vs, "");
+    for vs in &agent.critic_vs {
+        add(vs, "");
+    }
+    for vs in &agent.targets.as_ref().unwrap().critic_vs {
+        add(vs, "target.");
+    }
+    add(&agent.sac.as_ref().unwrap().vs, "");
+    out
+}
+
+/// The PyTorch reference's update, reproduced: every weight after it (the actor, both critics,
+/// their targets, `log_alpha`), the losses, the temperature and the entropy, for a
+/// feed-forward agent, an LSTM agent (scan part, short windows, a terminated tail) and an
+/// LSTM agent with BPTT in the actor loss.
+#[test]
+fn one_update_matches_pytorch() {
+    let fixture: Value = serde_json::from_str(FIXTURE).unwrap();
+    for case in fixture["cases"].as_array().unwrap() {
+        let name = case["name"].as_str().unwrap();
+        let cfg: RdpgConfig = serde_json::from_value(case["config"].clone()).unwrap();
+        let (obs, act) = (
+            case["obs_dim"].as_u64().unwrap() as usize,
+            case["act_dim"].as_u64().unwrap() as usize,
+        );
+        let mut agent = RdpgAgent::new_with_kind(cfg, obs, act, 0, Kind::Double).unwrap();
+        let vars = vars_by_name(&agent);
+        let before = case["before"].as_object().unwrap();
+        assert_eq!(vars.len(), before.len(), "{name}: variables");
+        for (n, mut var) in vars {
+            let v = Tensor::from_slice(&f64s(&before[&n])).view(var.size().as_slice());
+            tch::no_grad(|| var.copy_(&v));
+        }
+        agent.rng = NpRng::from_seed(case["noise_seed"].as_u64().unwrap());
+        let batch: SequenceBatch = serde_json::from_value(case["batch"].clone()).unwrap();
+        let stats = agent.update(&batch).unwrap();
+
+        let after = case["after"].as_object().unwrap();
+        let weights: HashMap<String, Vec<f64>> = agent.weights().into_iter().collect();
+        assert_eq!(weights.len(), after.len(), "{name}: variables after");
+        for (n, want) in after {
+            assert_close(&weights[n], &f64s(want), 1e-10, &format!("{name}: {n}"));
+        }
+        for (key, got) in [
+            ("critic_loss", stats.critic_loss),
+            ("actor_loss", stats.actor_loss.unwrap()),
+            ("alpha", stats.extra["alpha"]),
+            ("entropy", stats.extra["entropy"]),
+        ] {
+            let want = case[key].as_f64().unwrap();
+            assert_close(&[got], &[want], 1e-10, &format!("{name}: {key}"));
+        }
+    }
+}
+
+/// `log pi(a)` of the squashed Gaussian against the density of `tanh(u)` by the change of
+/// variables written out, in the saturated region too (`|u|` up to 30, where
+/// `log(1 - tanh(u)^2)` computed naively is `-inf`).
+#[test]
+fn the_log_probability_is_the_squashed_gaussians() {
+    let m = Tensor::from_slice(&[0.3, -1.2, 4.0, -2.0, 25.0, 0.0]).view([3, 2]);
+    let log_s = Tensor::from_slice(&[-0.5, 0.2, 1.0, -3.0, 0.0, -20.0]).view([3, 2]);
+    let eps = Tensor::from_slice(&[1.1, -0.4, 2.0, 0.7, 5.0, 0.3]).view([3, 2]);
+    let (a, logp) = squashed_sample(&m, &log_s, &eps);
+    let (m, log_s, eps) = (to_vec64(&m), to_vec64(&log_s), to_vec64(&eps));
+    let mut want = [0.0f64; 3];
+    for k in 0..6 {
+        let u = m[k] + log_s[k].exp() * eps[k];
+        let gauss = -0.5 * eps[k] * eps[k] - log_s[k] - 0.5 * (2.0 * std::f64::consts::PI).ln();
+        // d tanh(u) / du = 1 / cosh(u)^2: log = -2 log cosh(u), with log cosh(u) =
+        // |u| + log((1 + exp(-2|u|)) / 2).
+        let log_cosh = u.abs() + ((1.0 + (-2.0 * u.abs()).exp()) / 2.0).ln();
+        want[k / 2] += gauss + 2.0 * log_cosh;
+        assert!((to_vec64(&a)[k] - u.tanh()).abs() < 1e-15);
+    }
+    assert_close(&to_vec64(&logp), &want, 1e-12, "log pi");
+}
+
+fn sac_cfg(recurrent: bool) -> RdpgConfig {
+    let base = mlp(6);
+    let base = if recurrent { base } else { base.ddpg() };
+    RdpgConfig {
+        tau: 0.01,
+        twin_critic: true,
+        sac: Some(SacConfig::default()),
+        ..base
+    }
+}
+
+/// The soft bootstrap: with the critics' and the actor's learning rates tiny and `alpha`
+/// fixed, the critic loss of an update equals the one built from `rdpg_core::targets` on the
+/// window's rewards with `min Q'(o_tail, a_tail) - alpha log pi(a_tail)` at the tail, both
+/// computed from the agent before the update with the same noise.
+#[test]
+fn the_soft_tail_target_is_the_interpolated_td_with_the_entropy_at_the_bootstrap() {
+    for recurrent in [true, false] {
+        let cfg = RdpgConfig {
+            sac: Some(SacConfig {
+                init_alpha: 0.7,
+                learn_alpha: false,
+                ..Default::default()
+            }),
+            ..sac_cfg(recurrent)
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 4, Kind::Double).unwrap();
+        let b = batch(&cfg, 5, 0.5, 9);
+        let p = agent.prepare(&b);
+        agent.rng = NpRng::from_seed(21);
+        // The tail sample, from the same draws the update makes first.
+        let mut rng = NpRng::from_seed(21);
+        let eps: Vec<f64> = (0..p.n as usize * ACT)
+            .map(|_| rng.standard_normal())
+            .collect();
+        let eps = Tensor::from_slice(&eps).view([p.n, ACT as i64]);
+        let sc = agent.scan_all(&p);
+        let (x, y) = tch::no_grad(|| {
+            let (_, x, y) = agent.actor_along_window(&p, &sc);
+            (x, y)
+        });
+        let (m, log_s) = agent.actor.gaussian(&x, &y);
+        let (a_tail, logp) = squashed_sample(&m, &log_s, &eps);
+        let t = agent.targets.as_ref().unwrap();
+        let q: Vec<Tensor> = t
+            .critics
+            .iter()
+            .zip(&sc.target_critics)
+            .map(|(c, h)| target_q(c, &p, h, &a_tail))
+            .collect();
+        let v = to_vec64(&(q[0].minimum(&q[1]) - logp * 0.7));
+        // The reference: per window, rdpg_core::targets on its rewards and that tail value.
+        let l = cfg.opt_len;
+        let mut want = 0.0;
+        let critic_q: Vec<Vec<f64>> = agent
+            .critics
+            .iter()
+            .zip(&sc.critics)
+            .map(|(c, h)| to_vec64(&super::super::update::trained_q(c, &p, h)))
+            .collect();
+        let w = rdpg_core::targets::interpolated_td_weights(cfg.update_len, cfg.lambda);
+        let y = rdpg_core::targets::batch_tail_bootstrap_targets(&b, cfg.gamma, &v); // [n, l]
+        for k in 0..b.n {
+            let len = b.opt_len[k];
+            for q in &critic_q {
+                for i in 0..len.min(cfg.update_len) {
+                    let d = y[k * l + i] - q[k * cfg.update_len + i];
+                    want += w[i] * d * d / b.n as f64;
+                }
+            }
+        }
+        let stats = agent.update(&b).unwrap();
+        assert_close(&[stats.critic_loss], &[want], 1e-9, "soft critic loss");
+        assert_eq!(stats.extra["alpha"], 0.7);
+    }
+}
+
+/// The temperature falls while the policy's entropy is above the target and rises while it
+/// is below; with `learn_alpha = false` it stays.
+#[test]
+fn the_temperature_follows_the_entropy_target() {
+    for (target, falls) in [(-10.0, true), (10.0, false)] {
+        let cfg = RdpgConfig {
+            sac: Some(SacConfig {
+                target_entropy: Some(target),
+                lr_alpha: 0.05,
+                ..Default::default()
+            }),
+            ..sac_cfg(false)
+        };
+        let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 1).unwrap();
+        let b = batch(&cfg, 8, 0.0, 2);
+        for _ in 0..5 {
+            agent.update(&b).unwrap();
+        }
+        let alpha = agent.sac.as_ref().unwrap().alpha();
+        assert_eq!(alpha < 1.0, falls, "target {target}: alpha {alpha}");
+    }
+    let cfg = RdpgConfig {
+        sac: Some(SacConfig {
+            learn_alpha: false,
+            init_alpha: 0.3,
+            ..Default::default()
+        }),
+        ..sac_cfg(true)
+    };
+    let mut agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 1).unwrap();
+    agent.update(&batch(&cfg, 4, 0.3, 2)).unwrap();
+    assert!((agent.sac.as_ref().unwrap().alpha() - 0.3).abs() < 1e-7);
+}
+
+/// Acting: the deterministic action is `tanh(m)`, a sample `tanh(m + s eps)` (so zero noise
+/// gives the deterministic action), and both carry the recurrent state alike.
+#[test]
+fn acting_samples_and_evaluating_takes_the_mean() {
+    let agent = RdpgAgent::new(sac_cfg(true), OBS, ACT, 3).unwrap();
+    let obs: Vec<f32> = (0..2 * OBS).map(|i| (i as f32 * 0.37).sin()).collect();
+    let (mut s1, mut s2, mut s3) = (
+        agent.initial_state(2),
+        agent.initial_state(2),
+        agent.initial_state(2),
+    );
+    for _ in 0..3 {
+        let det = agent.act(&obs, &mut s1).unwrap();
+        let zero = agent.act_sampled(&obs, &mut s2, &[0.0; 2 * ACT]).unwrap();
+        let noisy = agent.act_sampled(&obs, &mut s3, &[1.5; 2 * ACT]).unwrap();
+        assert_eq!(det, zero);
+        assert_ne!(det, noisy);
+        assert!(noisy.iter().all(|a| a.abs() <= 1.0));
+    }
+    assert_eq!(s1.to_vec(), s3.to_vec());
+    let err = agent
+        .act_sampled(&obs, &mut s1, &[0.0; 3])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("noise values"), "{err}");
+    let td3 = RdpgAgent::new(mlp(6), OBS, ACT, 3).unwrap();
+    let err = td3
+        .act_sampled(&obs, &mut td3.initial_state(2), &[0.0; 2 * ACT])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("sac"), "{err}");
+}
+
+/// A checkpoint holds `log_alpha` and its Adam moments (and no target actor): a loaded agent
+/// continues bit-identically, and its parameter count is the config's; for an LSTM agent and
+/// a window-of-k one (`act_window`).
+#[test]
+fn a_checkpoint_continues_identically() {
+    let window = RdpgConfig {
+        act_window: 3,
+        scan_len: 2,
+        update_len: 1,
+        ..sac_cfg(true)
+    };
+    for cfg in [sac_cfg(true), window] {
+        checkpoint_round_trip(cfg);
+    }
+}
+
+fn checkpoint_round_trip(cfg: RdpgConfig) {
+    let b = batch(&cfg, 4, 0.3, 5);
+    let mut a = RdpgAgent::new(cfg.clone(), OBS, ACT, 8).unwrap();
+    a.update(&b).unwrap();
+    let dir = std::env::temp_dir().join(format!("rdpg-agents-sac-{}", std::process::id()));
+    a.save(&dir).unwrap();
+    let mut c = RdpgAgent::load(&dir).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    let names: Vec<String> = a.weights().into_iter().map(|(n, _)| n).collect();
+    assert!(names.contains(&"log_alpha".to_string()));
+    assert!(!names.iter().any(|n| n.starts_with("target.actor")));
+    let count: usize = a.weights().iter().map(|(_, v)| v.len()).sum();
+    assert_eq!(count as f64, cfg.param_count(OBS, ACT));
+    for _ in 0..2 {
+        a.update(&b).unwrap();
+        c.update(&b).unwrap();
+    }
+    assert_eq!(a.weights(), c.weights());
+}
+
+/// RDPG's options that do not apply to SAC are refused by name.
+#[test]
+fn options_of_the_deterministic_learner_are_refused_by_name() {
+    let sac = sac_cfg(false);
+    for (cfg, field) in [
+        (
+            RdpgConfig {
+                target_noise: Some(crate::rdpg::TargetNoise {
+                    std: 0.2,
+                    clip: 0.5,
+                }),
+                ..sac.clone()
+            },
+            "target_noise",
+        ),
+        (
+            RdpgConfig {
+                policy_delay: 2,
+                ..sac.clone()
+            },
+            "policy_delay",
+        ),
+        (
+            RdpgConfig {
+                fork: Some(ForkConfig::default()),
+                ..sac.clone()
+            },
+            "fork",
+        ),
+        (
+            RdpgConfig {
+                tau: 0.0,
+                ..sac.clone()
+            },
+            "tau",
+        ),
+        (
+            RdpgConfig {
+                parallel_twins: true,
+                ..sac.clone()
+            },
+            "parallel_twins",
+        ),
+        (
+            RdpgConfig {
+                sac: Some(SacConfig {
+                    init_alpha: 0.0,
+                    ..Default::default()
+                }),
+                ..sac.clone()
+            },
+            "sac.init_alpha",
+        ),
+    ] {
+        let err = cfg.validate().unwrap_err().to_string();
+        assert!(err.contains(field), "{field}: {err}");
+    }
+}
