@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
-"""The update of a recurrent TD3-family recipe (configs/walker-rdpg.toml, memory-rdpg.toml)
+"""The update of a recurrent TD3-family recipe (configs/walker-rdpg.toml, memory-rdpg.toml) or
+a recurrent SAC recipe (configs/memory-sac.toml, hardcore-sac-paper.toml: ``algo = "sac"``)
 written in PyTorch, to compare with ``rdpg bench update --config FILE``. It reads the same TOML
-file and builds the same networks and update, op for op as rdpg-agents runs it:
+file and builds the same networks and update, op for op as rdpg-agents runs it (SAC: as
+``build_sac`` says; TD3 family:)
 
 * networks: MLP trunk (ReLU after every layer) -> LSTM -> head (tanh for the actor); the critic
   reads observation ++ action at its trunk's input (``critic_action_fc = 0``); twin critics;
@@ -29,6 +31,7 @@ Usage: .venv/bin/python scripts/bench/pytorch_recipe_update.py --config configs/
 
 import argparse
 import json
+import math
 import time
 import tomllib
 
@@ -59,13 +62,16 @@ def cell(lstm, x, h, c):
     return torch.lstm_cell(x, (h, c), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
 
 
-def stepwise(lstm, x, h, c):
-    """One cell step at a time; returns the states before every step."""
+def stepwise(lstm, x, h, c, final=False):
+    """One cell step at a time; returns the states before every step (and with ``final`` the
+    state after the last)."""
     hs, cs = [], []
     for t in range(x.shape[1]):
         hs.append(h)
         cs.append(c)
         h, c = cell(lstm, x[:, t], h, c)
+    if final:
+        return torch.stack(hs, 1), torch.stack(cs, 1), h
     return torch.stack(hs, 1), torch.stack(cs, 1)
 
 
@@ -75,8 +81,130 @@ DEFAULTS = dict(gamma=0.99, lr_actor=1e-3, lr_critic=1e-3, critic_l2=1e-5, batch
                 actor_hidden=256, critic_hidden=320, critic_action_fc=64, recurrent=True)
 
 
+def sample(out, act_dim, eps):
+    """A squashed-Gaussian sample from the actor's head output ``[mean, log_std]`` and its
+    log-probability with the tanh correction (rdpg's ``sac::squashed_sample``)."""
+    m, log_s = out[:, :act_dim], out[:, act_dim:].clamp(-20.0, 2.0)
+    u = m + log_s.exp() * eps
+    log_normal = -0.5 * eps**2 - log_s - 0.5 * math.log(2 * math.pi)
+    log_det = 2 * (math.log(2) - u - F.softplus(-2 * u))
+    return torch.tanh(u), (log_normal - log_det).sum(-1)
+
+
+def build_sac(ag, obs_dim, act_dim):
+    """SAC's update as ``rdpg-agents/src/rdpg/sac.rs`` runs it: 1. scans of the actor (from the
+    stored state), the critics and the target critics; 2. the actor along the window one cell
+    step at a time (its states and its output at the tail), a sample at the tail, the target
+    critics along the window with it at the tail slot, ``min Q' - alpha log pi``, tail-step
+    targets, the critics' loss, Adam; 3. both critics rescanned and run along the window, the
+    actor's loss from every step's detached state through the minimum of both critics, Adam;
+    4. the temperature's Adam step; 5. soft update of the target critics."""
+    trunk = ag["trunk"]["mlp"]["hidden"]
+    n, s, l = ag["batch_size"], ag["scan_len"], ag["opt_len"]
+    gamma, tau = ag["gamma"], ag["tau"]
+    ha, hc = ag["actor_hidden"], ag["critic_hidden"]
+    actor = Net(obs_dim, trunk, ha, 2 * act_dim)
+    critics = [Net(obs_dim + act_dim, trunk, hc, 1) for _ in range(2)]
+    t_critics = [Net(obs_dim + act_dim, trunk, hc, 1) for _ in range(2)]
+    for t, m in zip(t_critics, critics):
+        t.load_state_dict(m.state_dict())
+        t.requires_grad_(False)
+    log_alpha = torch.zeros(1, requires_grad=True)
+    target_entropy = -float(act_dim)
+    opt_a = torch.optim.Adam(actor.parameters(), lr=ag["lr_actor"])
+    critic_params = [p for c in critics for p in c.parameters()]
+    opt_c = torch.optim.Adam(critic_params, lr=ag["lr_critic"], weight_decay=ag["critic_l2"])
+    opt_alpha = torch.optim.Adam([log_alpha], lr=ag.get("sac", {}).get("lr_alpha", 3e-4))
+    pairs = [(tp, p) for t, m in zip(t_critics, critics) for tp, p in zip(t.parameters(), m.parameters())]
+    onehot = torch.zeros(n, l + 1)
+    onehot[:, l] = 1
+    k = torch.arange(l)
+    disc = torch.where(k[:, None] >= k[None, :], gamma ** (k[:, None] - k[None, :]).float(), 0.0)
+    boot_coef = (gamma ** (l - k).float()).expand(n, l)
+    w = torch.full((n, l), 1.0 / l)
+    phases = dict(scan=0.0, window_nograd=0.0, critic_step=0.0, critic_rescan=0.0, actor_step=0.0, other=0.0)
+
+    def q_seq(c, obs, act, state):
+        y, _ = c.lstm(c.trunk(torch.cat([obs, act], -1)), state)
+        return c.head(y).squeeze(-1)
+
+    def update(b, timed):
+        obs, act, rew, stored = b
+        lap = [time.perf_counter()]
+
+        def tick(name):
+            if timed:
+                now = time.perf_counter()
+                phases[name] += now - lap[0]
+                lap[0] = now
+
+        alpha = log_alpha.detach().exp().item()
+        o_scan, a_scan = obs[:, :s], act[:, :s]
+        o_win, a_win, r = obs[:, s:], act[:, s:], rew[:, s:]
+        st = (stored[:, :ha].unsqueeze(0).contiguous(), stored[:, ha:].unsqueeze(0).contiguous())
+        zc = (torch.zeros(1, n, hc), torch.zeros(1, n, hc))
+        with torch.no_grad():
+            h_a = actor.lstm(actor.trunk(o_scan), st)[1]
+            h_c = [c.lstm(c.trunk(torch.cat([o_scan, a_scan], -1)), zc)[1] for c in critics]
+            h_tc = [c.lstm(c.trunk(torch.cat([o_scan, a_scan], -1)), zc)[1] for c in t_critics]
+        tick("scan")
+        with torch.no_grad():
+            # States before each of the l + 1 slots' steps, and the output at the tail slot l.
+            hb, cb, y_tail = stepwise(actor.lstm, actor.trunk(o_win), h_a[0][0], h_a[1][0], final=True)
+            a_tail, logp_tail = sample(actor.head(y_tail), act_dim, torch.randn(n, act_dim))
+            hb, cb = hb[:, :l], cb[:, :l]
+            ext = torch.cat([a_win, torch.zeros(n, 1, act_dim)], 1)
+            oh = onehot.unsqueeze(-1)
+            ext = ext * (1 - oh) + a_tail.unsqueeze(1) * oh
+            q_tail = torch.minimum(*[(q_seq(c, o_win, ext, h) * onehot).sum(1) for c, h in zip(t_critics, h_tc)])
+            y = (r @ disc) + boot_coef * (q_tail - alpha * logp_tail).unsqueeze(1)
+        tick("window_nograd")
+        closs = sum((w * (y - q_seq(c, o_win[:, :l], a_win, h)) ** 2).sum() / n for c, h in zip(critics, h_c))
+        opt_c.zero_grad()
+        closs.backward()
+        opt_c.step()
+        tick("critic_step")
+        states = []
+        with torch.no_grad():
+            for c in critics:
+                h0 = c.lstm(c.trunk(torch.cat([o_scan, a_scan], -1)), zc)[1]
+                states.append(stepwise(c.lstm, c.trunk(torch.cat([o_win[:, :l], a_win], -1)), h0[0][0], h0[1][0]))
+        tick("critic_rescan")
+        for c in critics:
+            c.requires_grad_(False)
+        o = o_win[:, :l].reshape(n * l, -1)
+        ya, _ = cell(actor.lstm, actor.trunk(o), hb.reshape(n * l, -1), cb.reshape(n * l, -1))
+        a_new, logp = sample(actor.head(ya), act_dim, torch.randn(n * l, act_dim))
+        qs = []
+        for c, (hcb, ccb) in zip(critics, states):
+            yc, _ = cell(c.lstm, c.trunk(torch.cat([o, a_new], -1)), hcb.reshape(n * l, -1), ccb.reshape(n * l, -1))
+            qs.append(c.head(yc).squeeze(-1))
+        aloss = ((alpha * logp - torch.minimum(*qs)).reshape(n, l) * w).sum() / n
+        opt_a.zero_grad()
+        aloss.backward()
+        for c in critics:
+            c.requires_grad_(True)
+        opt_a.step()
+        mean_logp = (logp.detach().reshape(n, l) * w).sum() / n
+        opt_alpha.zero_grad()
+        (-(log_alpha * (mean_logp + target_entropy)).sum()).backward()
+        opt_alpha.step()
+        tick("actor_step")
+        with torch.no_grad():
+            for tp, p in pairs:
+                tp.lerp_(p, tau)
+        tick("other")
+        return closs.item(), aloss.item()
+
+    return update, phases, (n, s, l, ha)
+
+
 def build(cfg, obs_dim, act_dim):
     ag = {**DEFAULTS, **cfg["agent"]}
+    if cfg.get("algo") == "sac":
+        if not ag["recurrent"] or ag["critic_action_fc"] != 0 or not ag.get("twin_critic"):
+            raise SystemExit("this script covers recurrent twin-critic SAC with critic_action_fc = 0")
+        return build_sac(ag, obs_dim, act_dim)
     trunk = ag["trunk"]["mlp"]["hidden"]
     if not ag["recurrent"] or ag["critic_action_fc"] != 0:
         raise SystemExit("this script covers recurrent agents with critic_action_fc = 0")

@@ -180,6 +180,12 @@ pub struct RdpgConfig {
     /// observation at the trunk's input, as in TD3's and Stable-Baselines3's critics (needs an
     /// MLP trunk).
     pub critic_action_fc: usize,
+    /// The action enters the critic after its core, beside the core's output, at the head's
+    /// input (`[y_t, a_t]`, with `core_skip` `[x_t, y_t, a_t]`): the core (the LSTM) reads
+    /// observations only, so the critic's state summarises the observation history, as in the
+    /// public recurrent Hardcore agents (Özalp's LSTM critics). Needs `critic_action_fc = 0`
+    /// (the raw action joins); any trunk.
+    pub critic_action_after_core: bool,
     /// Hidden layers (FC + ReLU) between the actor's core and its output layer; empty (the
     /// default, the paper's): the output layer reads the core directly.
     pub actor_head: Vec<usize>,
@@ -303,6 +309,7 @@ impl Default for RdpgConfig {
             actor_hidden: 256,
             critic_hidden: 320,
             critic_action_fc: 64,
+            critic_action_after_core: false,
             actor_head: Vec::new(),
             critic_head: Vec::new(),
             core_skip: false,
@@ -440,7 +447,16 @@ impl RdpgConfig {
                 format!("must be at most {MAX_WIDTH}"),
             ));
         }
-        if self.critic_action_fc == 0 && !matches!(self.trunk, Trunk::Mlp { .. }) {
+        if self.critic_action_after_core && self.critic_action_fc != 0 {
+            return Err(bad(
+                "critic_action_after_core",
+                "needs critic_action_fc = 0: the raw action joins the core's output",
+            ));
+        }
+        if self.critic_action_fc == 0
+            && !self.critic_action_after_core
+            && !matches!(self.trunk, Trunk::Mlp { .. })
+        {
             return Err(bad(
                 "critic_action_fc",
                 "0 (the action at the critic's input) needs an MLP trunk; the lidar trunk takes \
@@ -714,11 +730,16 @@ impl RdpgConfig {
         let out = if self.sac.is_some() { 2.0 * a } else { a };
         let actor = trunk(d) + core(e, ha) + head(e, ha, &self.actor_head, out);
         let af = self.critic_action_fc as f64;
-        let critic = match self.critic_action_fc {
-            0 => trunk(d + a),
-            _ => trunk(d) + linear(a, af),
-        } + core(e + af, hc)
-            + head(e + af, hc, &self.critic_head, 1.0);
+        let critic = if self.critic_action_after_core {
+            // The raw action joins the head's input: one more input to its first layer.
+            trunk(d) + core(e, hc) + head(e, hc + a, &self.critic_head, 1.0)
+        } else {
+            let input = match self.critic_action_fc {
+                0 => trunk(d + a),
+                _ => trunk(d) + linear(a, af),
+            };
+            input + core(e + af, hc) + head(e + af, hc, &self.critic_head, 1.0)
+        };
         let critics = if self.twin_critic { 2.0 } else { 1.0 };
         let copies = if self.tau > 0.0 { 2.0 } else { 1.0 };
         match self.sac {

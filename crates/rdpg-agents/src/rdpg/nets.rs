@@ -164,17 +164,16 @@ fn head_input(skip: bool, x: &Tensor, y: &Tensor) -> Tensor {
 }
 
 /// A network's head under `p`: hidden layers `head_mlp.fc{i}` (FC + ReLU, `hidden` widths)
-/// from the core's output of width `h` (with `skip`, `e + h`: its input too), then the output
-/// layer `head` to `out`.
+/// from the core's output of width `h` (with `skip`, `e + h`: its input too; plus `extra`
+/// inputs, a critic's action after its core), then the output layer `head` to `out`.
 fn head_layers(
     p: &nn::Path,
     skip: bool,
-    e: i64,
-    h: i64,
+    (e, h, extra): (i64, i64, i64),
     hidden: &[usize],
     out: i64,
 ) -> (Mlp, nn::Linear) {
-    let input = h + if skip { e } else { 0 };
+    let input = h + extra + if skip { e } else { 0 };
     let mlp = Mlp::new(
         &(p / "head_mlp"),
         input as usize,
@@ -247,7 +246,7 @@ impl Actor {
         let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
         let gaussian = cfg.sac.is_some();
         let out = if gaussian { 2 * act_dim } else { act_dim };
-        let (head_mlp, head) = head_layers(p, cfg.core_skip, e, h, &cfg.actor_head, out);
+        let (head_mlp, head) = head_layers(p, cfg.core_skip, (e, h, 0), &cfg.actor_head, out);
         Self {
             trunk,
             core,
@@ -313,7 +312,8 @@ impl Actor {
     }
 }
 
-/// The critic `Q(o_t, a_t | h_{t-1})`: (trunk ++ action FC) -> core -> linear.
+/// The critic `Q(o_t, a_t | h_{t-1})`: (trunk ++ action FC) -> core -> linear, or with the
+/// action after the core, trunk -> core -> (`[y_t, a_t]`) -> linear.
 #[derive(Debug)]
 pub struct Critic {
     /// Observation embedding.
@@ -329,6 +329,9 @@ pub struct Critic {
     pub skip: bool,
     /// Output layer `H -> 1` (from the last head layer, or `E + H` with `core_skip`).
     pub head: nn::Linear,
+    /// Whether the action joins after the core, at the head's input
+    /// (`critic_action_after_core`) instead of before it.
+    pub action_after_core: bool,
 }
 
 impl Critic {
@@ -342,13 +345,17 @@ impl Critic {
             head_mlp: self.head_mlp.shallow_clone(),
             skip: self.skip,
             head: linear_handle(&self.head),
+            action_after_core: self.action_after_core,
         }
     }
 
     /// Builds the critic's variables under `p`.
     pub fn new(p: &nn::Path, cfg: &RdpgConfig, obs_dim: i64, act_dim: i64) -> Self {
         let af = cfg.critic_action_fc as i64;
-        let (trunk, act_fc) = if af == 0 {
+        let after = cfg.critic_action_after_core;
+        let (trunk, act_fc) = if after {
+            (TrunkNet::new(&(p / "trunk"), cfg, obs_dim), None)
+        } else if af == 0 {
             (TrunkNet::new(&(p / "trunk"), cfg, obs_dim + act_dim), None)
         } else {
             let fc = nn::linear(p / "act_fc", act_dim, af, Default::default());
@@ -357,7 +364,8 @@ impl Critic {
         let e = cfg.embed_dim() as i64 + af;
         let h = cfg.critic_hidden as i64;
         let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
-        let (head_mlp, head) = head_layers(p, cfg.core_skip, e, h, &cfg.critic_head, 1);
+        let extra = if after { act_dim } else { 0 };
+        let (head_mlp, head) = head_layers(p, cfg.core_skip, (e, h, extra), &cfg.critic_head, 1);
         Self {
             trunk,
             act_fc,
@@ -365,12 +373,16 @@ impl Critic {
             head_mlp,
             skip: cfg.core_skip,
             head,
+            action_after_core: after,
         }
     }
 
     /// Core input: `obs [B, T, D]`, `act [B, T, A]` -> `[B, T, E + 64]` (`[B, T, E]` without
-    /// an action branch).
+    /// an action branch, or with the action after the core, where `act` is not read).
     pub fn input_seq(&self, obs: &Tensor, act: &Tensor) -> Tensor {
+        if self.action_after_core {
+            return self.trunk.forward_seq(obs);
+        }
         match &self.act_fc {
             Some(fc) => {
                 let e = self.trunk.forward_seq(obs);
@@ -381,11 +393,16 @@ impl Critic {
         }
     }
 
-    /// Core input and output -> Q: `x [.., E]`, `y [.., H]` -> `[..]` (`x` is read only with
-    /// `core_skip`).
-    pub fn head(&self, x: &Tensor, y: &Tensor) -> Tensor {
+    /// Core input and output (and the action) -> Q: `x [.., E]`, `y [.., H]`, `act [.., A]`
+    /// -> `[..]` (`x` is read only with `core_skip`, `act` only with the action after the
+    /// core).
+    pub fn head(&self, x: &Tensor, y: &Tensor, act: &Tensor) -> Tensor {
+        let mut input = head_input(self.skip, x, y);
+        if self.action_after_core {
+            input = Tensor::cat(&[input, act.shallow_clone()], -1);
+        }
         self.head
-            .forward(&self.head_mlp.forward(&head_input(self.skip, x, y)))
+            .forward(&self.head_mlp.forward(&input))
             .squeeze_dim(-1)
     }
 
@@ -394,12 +411,15 @@ impl Critic {
     pub fn forward_seq(&self, obs: &Tensor, act: &Tensor, h0: &RecState) -> (Tensor, RecState) {
         let x = self.input_seq(obs, act);
         let (y, s) = self.core.seq(&x, h0);
-        (self.head(&x, &y), s)
+        (self.head(&x, &y, act), s)
     }
 
     /// Core input for single steps: `obs [N, D]`, `act [N, A]` -> `[N, E + 64]` (`[N, E]`
-    /// without an action branch).
+    /// without an action branch, or with the action after the core).
     pub fn input(&self, obs: &Tensor, act: &Tensor) -> Tensor {
+        if self.action_after_core {
+            return self.trunk.forward(obs);
+        }
         match &self.act_fc {
             Some(fc) => {
                 let e = self.trunk.forward(obs);
@@ -414,7 +434,7 @@ impl Critic {
     pub fn step(&self, obs: &Tensor, act: &Tensor, s: &RecState) -> (Tensor, RecState) {
         let x = self.input(obs, act);
         let (y, s) = self.core.step(&x, s);
-        (self.head(&x, &y), s)
+        (self.head(&x, &y, act), s)
     }
 }
 
@@ -505,5 +525,41 @@ mod tests {
         };
         let err = lidar.validate().unwrap_err().to_string();
         assert!(err.contains("critic_action_fc"), "{err}");
+    }
+
+    /// `critic_action_after_core`: the core reads observations only (its state is the same
+    /// whatever the actions), the action joins at the head, and Q depends on it; with the
+    /// lidar trunk too; an action branch alongside is refused.
+    #[test]
+    fn critic_with_the_action_after_its_core() {
+        tch::manual_seed(2);
+        let cfg = RdpgConfig {
+            critic_action_fc: 0,
+            critic_action_after_core: true,
+            ..cfg_small()
+        };
+        cfg.validate().unwrap();
+        let vs = nn::VarStore::new(Device::Cpu);
+        let critic = Critic::new(&(vs.root() / "c"), &cfg, 24, 4);
+        let vars = vs.variables();
+        assert_eq!(vars["c.head.weight"].size(), [1, 9 + 4]);
+        assert_eq!(vars["c.trunk.body_fc.weight"].size(), [6, 14]);
+        let obs = Tensor::randn([3, 5, 24], (Kind::Float, Device::Cpu));
+        let a1 = Tensor::randn([3, 5, 4], (Kind::Float, Device::Cpu));
+        let a2 = Tensor::randn([3, 5, 4], (Kind::Float, Device::Cpu));
+        let h0 = critic.core.zero_state(3, Kind::Float, Device::Cpu);
+        let (q1, s1) = critic.forward_seq(&obs, &a1, &h0);
+        let (q2, s2) = critic.forward_seq(&obs, &a2, &h0);
+        assert!(s1.h.equal(&s2.h) && s1.c.equal(&s2.c));
+        assert!(!q1.allclose(&q2, 1e-4, 1e-4, false));
+        let (q, _) = critic.step(&obs.select(1, 0), &a1.select(1, 0), &h0);
+        assert!(q.allclose(&q1.select(1, 0), 1e-6, 1e-6, false));
+
+        let branch = RdpgConfig {
+            critic_action_fc: 8,
+            ..cfg
+        };
+        let err = branch.validate().unwrap_err().to_string();
+        assert!(err.contains("critic_action_after_core"), "{err}");
     }
 }

@@ -277,7 +277,7 @@ pub(super) fn squashed_sample(m: &Tensor, log_s: &Tensor, eps: &Tensor) -> (Tens
 /// h^C_{i-1})]` (`w = actor_w`: `1/len_n` on real steps) with gradient into the actor, and the
 /// log-probabilities `[N*l]`. `critic_states[j]` are critic `j`'s `(h_{i-1}, c_{i-1})`,
 /// `[N, l, Hc]`; `eps` is `[N*l, A]`.
-fn soft_actor_loss(
+pub(super) fn soft_actor_loss(
     agent: &RdpgAgent,
     p: &Prepared,
     input: ActorInput<'_>,

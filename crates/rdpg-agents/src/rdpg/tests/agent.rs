@@ -322,6 +322,12 @@ fn param_count_is_exact() {
             ..with_heads(mlp(5), true)
         },
         with_heads(ff.clone(), true),
+        with_action_after_core(tiny(), true),
+        with_action_after_core(with_heads(ff.clone(), true), true),
+        RdpgConfig {
+            tau: 0.01,
+            ..with_action_after_core(with_heads(mlp(5), true), true)
+        },
         ff,
     ] {
         let agent = RdpgAgent::new(cfg.clone(), OBS, ACT, 0).unwrap();

@@ -4,12 +4,19 @@ use super::*;
 
 #[test]
 fn critic_loss_gradient_matches_finite_differences() {
-    for (recurrent, heads) in [(true, false), (false, false), (true, true), (false, true)] {
+    for (recurrent, heads, after) in [
+        (true, false, false),
+        (false, false, false),
+        (true, true, false),
+        (false, true, false),
+        (true, false, true),
+        (false, true, true),
+    ] {
         let cfg = RdpgConfig {
             recurrent,
             lambda: 0.7,
             update_len: 2,
-            ..with_heads(tiny(), heads)
+            ..with_action_after_core(with_heads(tiny(), heads), after)
         };
         let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 21, Kind::Double).unwrap();
         let b = batch(&cfg, 5, 0.5, 8);
@@ -29,17 +36,24 @@ fn critic_loss_gradient_matches_finite_differences() {
         check_grads(
             &agent.critic_vs[0],
             &f,
-            &format!("critic (recurrent {recurrent}, heads {heads})"),
+            &format!("critic (recurrent {recurrent}, heads {heads}, action after core {after})"),
         );
     }
 }
 
 #[test]
 fn actor_loss_gradient_matches_finite_differences() {
-    for (bptt, heads) in [(false, false), (true, false), (false, true), (true, true)] {
+    for (bptt, heads, after) in [
+        (false, false, false),
+        (true, false, false),
+        (false, true, false),
+        (true, true, false),
+        (false, false, true),
+        (true, true, true),
+    ] {
         let cfg = RdpgConfig {
             actor_bptt: bptt,
-            ..with_heads(tiny(), heads)
+            ..with_action_after_core(with_heads(tiny(), heads), after)
         };
         let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 22, Kind::Double).unwrap();
         let b = batch(&cfg, 5, 0.5, 9);
@@ -62,7 +76,7 @@ fn actor_loss_gradient_matches_finite_differences() {
         check_grads(
             &agent.actor_vs,
             &f,
-            &format!("actor (bptt {bptt}, heads {heads})"),
+            &format!("actor (bptt {bptt}, heads {heads}, action after core {after})"),
         );
     }
 }

@@ -68,6 +68,18 @@ fn with_heads(cfg: RdpgConfig, heads: bool) -> RdpgConfig {
     }
 }
 
+/// `cfg` with the critic's action joining after its core (`after`), or as it is.
+fn with_action_after_core(cfg: RdpgConfig, after: bool) -> RdpgConfig {
+    if !after {
+        return cfg;
+    }
+    RdpgConfig {
+        critic_action_after_core: true,
+        critic_action_fc: 0,
+        ..cfg
+    }
+}
+
 fn batch(cfg: &RdpgConfig, n: usize, short: f64, seed: u64) -> SequenceBatch {
     let mut rng = NpRng::from_seed(seed);
     synthetic_batch(n, cfg.scan_len, cfg.opt_len, OBS, ACT, short, &mut rng)

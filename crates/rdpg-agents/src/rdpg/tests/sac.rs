@@ -9,7 +9,8 @@ use serde_json::Value;
 
 use super::*;
 use crate::rdpg::config::SacConfig;
-use crate::rdpg::sac::squashed_sample;
+use crate::rdpg::sac::{soft_actor_loss, squashed_sample};
+use crate::rdpg::update::critic_states;
 
 const FIXTURE: &str = include_str!("../../../../../tests/fixtures/sac_update.json");
 
@@ -343,5 +344,47 @@ fn options_of_the_deterministic_learner_are_refused_by_name() {
     ] {
         let err = cfg.validate().unwrap_err().to_string();
         assert!(err.contains(field), "{field}: {err}");
+    }
+}
+
+/// The actor loss's gradient (through the reparameterised sample, the tanh correction and the
+/// minimum over the twin critics) against finite differences, BPTT or not, the noise and the
+/// critics' states held fixed.
+#[test]
+fn the_actor_loss_gradient_matches_finite_differences() {
+    for bptt in [false, true] {
+        let cfg = RdpgConfig {
+            actor_bptt: bptt,
+            ..sac_cfg(true)
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 31, Kind::Double).unwrap();
+        let b = batch(&cfg, 4, 0.5, 12);
+        let p = agent.prepare(&b);
+        let sc = tch::no_grad(|| agent.scan_all(&p));
+        let (states, _, _) = tch::no_grad(|| agent.actor_along_window(&p, &sc));
+        let cs: Vec<(Tensor, Tensor)> = tch::no_grad(|| {
+            agent
+                .critics
+                .iter()
+                .zip(&sc.critics)
+                .map(|(c, h)| critic_states(c, &p, h))
+                .collect()
+        });
+        let mut rng = NpRng::from_seed(3);
+        let eps: Vec<f64> = (0..(p.n * p.l) as usize * ACT)
+            .map(|_| rng.standard_normal())
+            .collect();
+        let eps = Tensor::from_slice(&eps).view([p.n * p.l, ACT as i64]);
+        let loss = |agent: &RdpgAgent| {
+            let input = match &states {
+                Some((h, c)) if !bptt => ActorInput::Detached { h, c },
+                _ => ActorInput::Bptt { h0: sc.actor() },
+            };
+            soft_actor_loss(agent, &p, input, &cs, &eps, 0.4).0
+        };
+        agent.actor_opt.zero_grad();
+        loss(&agent).backward();
+        let f = || tch::no_grad(|| loss(&agent).double_value(&[]));
+        check_grads(&agent.actor_vs, &f, &format!("SAC actor (bptt {bptt})"));
     }
 }
