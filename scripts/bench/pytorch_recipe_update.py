@@ -81,6 +81,36 @@ DEFAULTS = dict(gamma=0.99, lr_actor=1e-3, lr_critic=1e-3, critic_l2=1e-5, batch
                 actor_hidden=256, critic_hidden=320, critic_action_fc=64, recurrent=True)
 
 
+def window_consts(n, l, gamma):
+    """Full windows' tail one-hot ``[N, l+1]``, ``disc[k, i] = gamma^(k-i)`` for ``k >= i``,
+    the bootstrap coefficients ``gamma^(l-i)`` and the actor's weights ``1/l`` (``[N, l]``)."""
+    onehot = torch.zeros(n, l + 1)
+    onehot[:, l] = 1
+    k = torch.arange(l)
+    disc = torch.where(k[:, None] >= k[None, :], gamma ** (k[:, None] - k[None, :]).float(), 0.0)
+    boot_coef = (gamma ** (l - k).float()).expand(n, l)
+    return onehot, disc, boot_coef, torch.full((n, l), 1.0 / l)
+
+
+def q_seq(c, obs, act, state):
+    """A critic's Q along a sequence, ``[N, T]``."""
+    y, _ = c.lstm(c.trunk(torch.cat([obs, act], -1)), state)
+    return c.head(y).squeeze(-1)
+
+
+def stopwatch(phases, timed):
+    """``tick(name)`` charges the time since the last tick to ``phases[name]`` (when timed)."""
+    lap = [time.perf_counter()]
+
+    def tick(name):
+        if timed:
+            now = time.perf_counter()
+            phases[name] += now - lap[0]
+            lap[0] = now
+
+    return tick
+
+
 def sample(out, act_dim, eps):
     """A squashed-Gaussian sample from the actor's head output ``[mean, log_std]`` and its
     log-probability with the tanh correction (rdpg's ``sac::squashed_sample``)."""
@@ -116,27 +146,12 @@ def build_sac(ag, obs_dim, act_dim):
     opt_c = torch.optim.Adam(critic_params, lr=ag["lr_critic"], weight_decay=ag["critic_l2"])
     opt_alpha = torch.optim.Adam([log_alpha], lr=ag.get("sac", {}).get("lr_alpha", 3e-4))
     pairs = [(tp, p) for t, m in zip(t_critics, critics) for tp, p in zip(t.parameters(), m.parameters())]
-    onehot = torch.zeros(n, l + 1)
-    onehot[:, l] = 1
-    k = torch.arange(l)
-    disc = torch.where(k[:, None] >= k[None, :], gamma ** (k[:, None] - k[None, :]).float(), 0.0)
-    boot_coef = (gamma ** (l - k).float()).expand(n, l)
-    w = torch.full((n, l), 1.0 / l)
+    onehot, disc, boot_coef, w = window_consts(n, l, gamma)
     phases = dict(scan=0.0, window_nograd=0.0, critic_step=0.0, critic_rescan=0.0, actor_step=0.0, other=0.0)
-
-    def q_seq(c, obs, act, state):
-        y, _ = c.lstm(c.trunk(torch.cat([obs, act], -1)), state)
-        return c.head(y).squeeze(-1)
 
     def update(b, timed):
         obs, act, rew, stored = b
-        lap = [time.perf_counter()]
-
-        def tick(name):
-            if timed:
-                now = time.perf_counter()
-                phases[name] += now - lap[0]
-                lap[0] = now
+        tick = stopwatch(phases, timed)
 
         alpha = log_alpha.detach().exp().item()
         o_scan, a_scan = obs[:, :s], act[:, :s]
@@ -231,28 +246,13 @@ def build(cfg, obs_dim, act_dim):
         for t, m in zip([t_actor] + t_critics, [actor] + critics)
         for tp, p in zip(t.parameters(), m.parameters())
     ]
-    onehot = torch.zeros(n, l + 1)
-    onehot[:, l] = 1
-    k = torch.arange(l)
-    disc = torch.where(k[:, None] >= k[None, :], gamma ** (k[:, None] - k[None, :]).float(), 0.0)  # [k, i]
-    boot_coef = (gamma ** (l - k).float()).expand(n, l)
-    w = torch.full((n, l), 1.0 / l)
+    onehot, disc, boot_coef, w = window_consts(n, l, gamma)
     phases = dict(scan=0.0, window_nograd=0.0, critic_step=0.0, critic_rescan=0.0, actor_step=0.0, other=0.0)
     updates = [0]
 
-    def q_seq(c, obs, act, state):  # [N, T] along a sequence
-        y, _ = c.lstm(c.trunk(torch.cat([obs, act], -1)), state)
-        return c.head(y).squeeze(-1)
-
     def update(b, timed):
         obs, act, rew, stored = b
-        lap = [time.perf_counter()]
-
-        def tick(name):
-            if timed:
-                now = time.perf_counter()
-                phases[name] += now - lap[0]
-                lap[0] = now
+        tick = stopwatch(phases, timed)
 
         o_scan, a_scan = obs[:, :s], act[:, :s]
         o_win, a_win, r = obs[:, s:], act[:, s:], rew[:, s:]

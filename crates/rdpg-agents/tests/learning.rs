@@ -75,6 +75,46 @@ fn rdpg_remembers_the_cue_and_ddpg_cannot() {
     assert!(ddpg < 0.3, "DDPG cannot remember, yet scored {ddpg:.3}");
 }
 
+/// Pendulum-v1, 8000 env steps, 1000 random warm-up steps, one update per step, and a
+/// feed-forward agent with 64-unit layers, the action at the critic's input, twin critics:
+/// the setting of the swing-up checks (each sets its own algorithm's options on top).
+fn pendulum_setting(exploration: ExplorationConfig) -> (TrainConfig, OffPolicyConfig, RdpgConfig) {
+    let train = TrainConfig {
+        env: "Pendulum-v1".into(),
+        total_steps: 8_000,
+        eval_every: 0,
+        eval_episodes: 10,
+        seed: 0,
+        ..TrainConfig::default()
+    };
+    let off = OffPolicyConfig {
+        warmup_steps: 1_000,
+        updates_per_step: 1.0,
+        replay_capacity: 10_000,
+        exploration,
+        ..OffPolicyConfig::default()
+    };
+    let agent = RdpgConfig {
+        trunk: Trunk::Mlp { hidden: vec![64] },
+        recurrent: false,
+        actor_hidden: 64,
+        critic_hidden: 64,
+        critic_action_fc: 0,
+        opt_len: 1,
+        update_len: 1,
+        scan_len: 0,
+        lr_actor: 1e-3,
+        lr_critic: 1e-3,
+        critic_l2: 0.0,
+        twin_critic: true,
+        batch_size: 64,
+        device: rdpg_agents::DeviceSpec::Cpu,
+        num_threads: Some(1),
+        ..RdpgConfig::default()
+    };
+    (train, off, agent)
+}
+
 /// Counts the actor updates and those whose loss had FORK's term.
 #[derive(Default)]
 struct ForkUse {
@@ -95,43 +135,14 @@ impl TrainObserver for ForkUse {
 
 #[test]
 fn td3_with_fork_learns_the_pendulum_swing_up() {
-    let train = TrainConfig {
-        env: "Pendulum-v1".into(),
-        total_steps: 8_000,
-        eval_every: 0,
-        eval_episodes: 10,
-        seed: 0,
-        ..TrainConfig::default()
-    };
-    let off = OffPolicyConfig {
-        warmup_steps: 1_000,
-        updates_per_step: 1.0,
-        replay_capacity: 10_000,
-        exploration: ExplorationConfig::Gaussian { sigma: 0.1 },
-        ..OffPolicyConfig::default()
-    };
+    let (train, off, base) = pendulum_setting(ExplorationConfig::Gaussian { sigma: 0.1 });
     let td3 = RdpgConfig {
-        trunk: Trunk::Mlp { hidden: vec![64] },
-        recurrent: false,
-        actor_hidden: 64,
-        critic_hidden: 64,
-        critic_action_fc: 0,
-        opt_len: 1,
-        update_len: 1,
-        scan_len: 0,
-        lr_actor: 1e-3,
-        lr_critic: 1e-3,
-        critic_l2: 0.0,
         tau: 0.005,
-        twin_critic: true,
         target_noise: Some(TargetNoise {
             std: 0.2,
             clip: 0.5,
         }),
         policy_delay: 2,
-        batch_size: 64,
-        device: rdpg_agents::DeviceSpec::Cpu,
-        num_threads: Some(1),
         fork: Some(ForkConfig {
             // Pendulum's angular velocity reaches 8: a looser threshold than TD3-FORK's 0.02
             // on walker observations, so that the term is in play.
@@ -143,7 +154,7 @@ fn td3_with_fork_learns_the_pendulum_swing_up() {
             // learning that the usual 0.5 leaves to the critic's term.
             weight: 3.0,
         }),
-        ..RdpgConfig::default()
+        ..base
     };
     let mut t = OffPolicyTrainer::new(train, off, td3).unwrap();
     let before = t.evaluate().unwrap().mean_return;
@@ -196,43 +207,14 @@ impl TrainObserver for SacTrace {
 /// policy's entropy approaches the target (-1).
 #[test]
 fn sac_learns_the_pendulum_swing_up() {
-    let train = TrainConfig {
-        env: "Pendulum-v1".into(),
-        total_steps: 8_000,
-        eval_every: 0,
-        eval_episodes: 10,
-        seed: 0,
-        ..TrainConfig::default()
-    };
-    let off = OffPolicyConfig {
-        warmup_steps: 1_000,
-        updates_per_step: 1.0,
-        replay_capacity: 10_000,
-        exploration: ExplorationConfig::None,
-        ..OffPolicyConfig::default()
-    };
+    let (train, off, base) = pendulum_setting(ExplorationConfig::None);
     let sac = RdpgConfig {
-        trunk: Trunk::Mlp { hidden: vec![64] },
-        recurrent: false,
-        actor_hidden: 64,
-        critic_hidden: 64,
-        critic_action_fc: 0,
-        opt_len: 1,
-        update_len: 1,
-        scan_len: 0,
-        lr_actor: 1e-3,
-        lr_critic: 1e-3,
-        critic_l2: 0.0,
         tau: 0.01,
-        twin_critic: true,
-        batch_size: 64,
-        device: rdpg_agents::DeviceSpec::Cpu,
-        num_threads: Some(1),
         sac: Some(SacConfig {
             lr_alpha: 1e-3,
             ..SacConfig::default()
         }),
-        ..RdpgConfig::default()
+        ..base
     };
     let mut t = OffPolicyTrainer::new(train, off, sac).unwrap();
     let before = t.evaluate().unwrap().mean_return;
