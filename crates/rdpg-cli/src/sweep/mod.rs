@@ -20,6 +20,7 @@
 //! threads = 1                              # libtorch threads per trial
 //! set = ["train.test_episodes=200"]        # overrides for every row (before the row's)
 //! results = "results/table1-cpu"           # default: results/<name>
+//! order = "seeds"                          # default "rows": every row's seed 0, then seed 1, ...
 //! [grid]                                   # optional: every row × every combination
 //! "agent.opt_len" = [4, 8]
 //! [[row]]
@@ -100,6 +101,9 @@ pub struct SweepFile {
     pub grid: BTreeMap<String, Vec<toml::Value>>,
     /// Where the per-trial result files go (default: `results/<name>`).
     pub results: Option<PathBuf>,
+    /// The order trials start in.
+    #[serde(default)]
+    pub order: TrialOrder,
     /// The rows.
     #[serde(default, rename = "row")]
     pub rows: Vec<RowSpec>,
@@ -107,6 +111,18 @@ pub struct SweepFile {
 
 fn one() -> usize {
     1
+}
+
+/// The order a sweep's trials start in (the table shows the rows in file order either way).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TrialOrder {
+    /// Row by row: every seed of the first row, then the next row.
+    #[default]
+    Rows,
+    /// Seed by seed: every row at the first seed, then every row at the next seed, so a
+    /// sweep stopped early has compared its rows on the same seeds.
+    Seeds,
 }
 
 /// One row of a sweep file.
@@ -295,6 +311,10 @@ impl Sweep {
                     });
                 }
             }
+        }
+        if file.order == TrialOrder::Seeds {
+            // A stable sort keeps the rows in file order within each seed.
+            trials.sort_by_key(|t| file.seeds.iter().position(|&s| s == t.seed));
         }
         Ok(Self {
             file,
@@ -548,5 +568,47 @@ mod tests {
             grid_points(&BTreeMap::new()).unwrap(),
             [(String::new(), vec![])]
         );
+    }
+
+    #[test]
+    fn trials_start_row_by_row_or_seed_by_seed() {
+        let dir = std::env::temp_dir().join(format!("rdpg-sweep-order-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/cue-rdpg.toml");
+        let ids = |order: &str| {
+            let file = dir.join("s.toml");
+            std::fs::write(
+                &file,
+                format!(
+                    "base = {:?}\nseeds = [3, 1]\nsteps = 100\n{order}\n\
+                     [[row]]\nname = \"a\"\n[[row]]\nname = \"b\"\n",
+                    base.display().to_string()
+                ),
+            )
+            .unwrap();
+            let sweep = Sweep::load(&file).unwrap();
+            let rows: Vec<String> = sweep.rows().iter().map(|t| t.row.clone()).collect();
+            assert_eq!(rows, ["a", "b"], "the table keeps the file's row order");
+            sweep
+                .trials
+                .iter()
+                .map(|t| t.id.clone())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(ids(""), ["a-s3", "a-s1", "b-s3", "b-s1"]);
+        assert_eq!(ids("order = \"rows\""), ["a-s3", "a-s1", "b-s3", "b-s1"]);
+        assert_eq!(ids("order = \"seeds\""), ["a-s3", "b-s3", "a-s1", "b-s1"]);
+        let bad = dir.join("bad.toml");
+        std::fs::write(
+            &bad,
+            format!(
+                "base = {:?}\nseeds = [0]\nsteps = 100\norder = \"random\"\n[[row]]\nname = \"a\"\n",
+                base.display().to_string()
+            ),
+        )
+        .unwrap();
+        let err = format!("{:#}", Sweep::load(&bad).err().unwrap());
+        assert!(err.contains("unknown variant `random`"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 }
