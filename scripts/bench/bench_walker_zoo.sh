@@ -2,15 +2,18 @@
 # Whole-training speed on BipedalWalker-v3 at RL Zoo's sizes, rdpg vs Stable-Baselines3, in one
 # run: env steps/s after the 10k random warm-up steps, one update per step. `td3`
 # (configs/walker-td3-zoo.toml): 1 thread each, then both cores each (rdpg: `parallel_twins`;
-# SB3: 2 PyTorch threads). `sac` (configs/walker-sac.toml): 1 thread each, then SB3 on 2.
-# Usage: scripts/bench/bench_walker_zoo.sh td3|sac [STEPS]   (default 30000). Needs
-# target/release/rdpg and stable-baselines3 2.9.2 in .venv (pip install stable-baselines3==2.9.2).
+# SB3: 2 PyTorch threads). `sac` (configs/walker-sac.toml) and `tqc` (configs/walker-tqc.toml,
+# against sb3-contrib's TQC): 1 thread each, then SB3 on 2.
+# Usage: scripts/bench/bench_walker_zoo.sh td3|sac|tqc [STEPS]   (default 30000). Needs
+# target/release/rdpg and stable-baselines3 2.9.2 in .venv (pip install stable-baselines3==2.9.2;
+# for tqc also sb3-contrib==2.9.2).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 algo="$1"
 steps="${2:-30000}"
 config=configs/walker-td3-zoo.toml
 [ "$algo" = sac ] && config=configs/walker-sac.toml
+[ "$algo" = tqc ] && config=configs/walker-tqc.toml
 out="$(mktemp -d)"
 rdpg() { # $1: label, $2: threads used, rest: extra `rdpg train` arguments
   local label="$1" threads="$2"

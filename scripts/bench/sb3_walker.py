@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
-"""Stable-Baselines3's TD3 or SAC on BipedalWalker-v3 with the settings of rdpg's recipes: the
-speed reference for configs/walker-td3-zoo.toml (``--algo td3``: RL Zoo's TD3) and
-configs/walker-sac.toml (``--algo sac``: RL Zoo's SAC sizes without gSDE) — same networks,
-batch, rates, noise, warm-up, one update per step.
+"""Stable-Baselines3's TD3, SAC or TQC on BipedalWalker-v3 with the settings of rdpg's recipes:
+the speed reference for configs/walker-td3-zoo.toml (``--algo td3``: RL Zoo's TD3),
+configs/walker-sac.toml (``--algo sac``: RL Zoo's SAC sizes without gSDE) and
+configs/walker-tqc.toml (``--algo tqc``: sb3-contrib's TQC, 2 critics of 25 atoms, 2 dropped
+per critic) — same networks, batch, rates, noise, warm-up, one update per step.
 
 Trains for ``--steps`` env steps on ``gym.make("BipedalWalker-v3")`` and prints one JSON line
 with the whole-training steps/s after warm-up (the 10k random steps excluded)::
@@ -10,7 +11,8 @@ with the whole-training steps/s after warm-up (the 10k random steps excluded)::
     {"impl":"sb3-td3","sb3":"2.9.2","torch":"2.11.0","threads":1,"steps":N,
      "warmup_steps":10000,"seconds_after_warmup":X,"steps_per_sec_after_warmup":Y}
 
-Usage (needs stable-baselines3 in .venv: pip install stable-baselines3==2.9.2)::
+Usage (needs stable-baselines3 in .venv: pip install stable-baselines3==2.9.2; for ``tqc`` also
+sb3-contrib==2.9.2)::
 
     .venv/bin/python scripts/bench/sb3_walker.py --algo td3 --steps 30000 --threads 1
 """
@@ -47,7 +49,7 @@ class Clock(BaseCallback):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--algo", choices=("td3", "sac"), required=True)
+    ap.add_argument("--algo", choices=("td3", "sac", "tqc"), required=True)
     ap.add_argument("--steps", type=int, default=30_000)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
@@ -79,16 +81,14 @@ def main() -> None:
             **common,
         )
     else:
-        model = SAC(
-            "MlpPolicy",
-            env,
-            learning_rate=7.3e-4,
-            buffer_size=300_000,
-            tau=0.02,
-            gamma=0.98,
-            ent_coef="auto",
-            **common,
-        )
+        soft = dict(learning_rate=7.3e-4, buffer_size=300_000, tau=0.02, gamma=0.98, ent_coef="auto")
+        if args.algo == "sac":
+            model = SAC("MlpPolicy", env, **soft, **common)
+        else:
+            from sb3_contrib import TQC  # pip install sb3-contrib==2.9.2
+
+            common["policy_kwargs"].update(n_quantiles=25, n_critics=2)
+            model = TQC("MlpPolicy", env, top_quantiles_to_drop_per_net=2, **soft, **common)
     clock = Clock()
     model.learn(total_timesteps=args.steps, callback=clock)
     seconds = time.perf_counter() - clock.t_warm

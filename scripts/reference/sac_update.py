@@ -1,7 +1,8 @@
 """One soft actor-critic update written out in PyTorch: the golden reference of `sac.rs`.
 
 Writes ``tests/fixtures/sac_update.json``: for a feed-forward agent, a recurrent (LSTM) one and
-a recurrent one with BPTT in the actor loss, the agent's config, its weights before the update,
+a recurrent one with BPTT in the actor loss, and the feed-forward and LSTM agents with TQC's
+truncated quantile critics, the agent's config, its weights before the update,
 a batch of windows (scan part, short windows, a terminated tail), the seed of the standard
 normal draws, and the weights, losses, temperature and entropy after one update. The Rust test
 (`crates/rdpg-agents/src/rdpg/tests/sac.rs`) loads the same weights and batch into an
@@ -9,8 +10,9 @@ normal draws, and the weights, losses, temperature and entropy after one update.
 must reproduce every number.
 
 This is written per window, step by step, from Haarnoja et al. (2018), "Soft Actor-Critic
-Algorithms and Applications", and the tail-step bootstrap of Song et al. (2018): no code is
-shared with the Rust side.
+Algorithms and Applications", Kuznetsov et al. (2020), "Controlling Overestimation Bias with
+Truncated Mixture of Continuous Distributional Quantile Critics" (TQC), and the tail-step
+bootstrap of Song et al. (2018): no code is shared with the Rust side.
 
     .venv/bin/python scripts/reference/sac_update.py
 """
@@ -36,7 +38,7 @@ NOISE_SEED = 77
 LOG_STD = (-20.0, 2.0)
 
 
-def make_weights(rng: np.random.Generator, recurrent: bool) -> dict[str, torch.Tensor]:
+def make_weights(rng: np.random.Generator, recurrent: bool, atoms: int) -> dict[str, torch.Tensor]:
     """Random weights under the Rust agent's variable names (larger than its init)."""
 
     def u(*shape):
@@ -63,8 +65,8 @@ def make_weights(rng: np.random.Generator, recurrent: bool) -> dict[str, torch.T
         w[f"{c}.trunk.fc0.weight"] = u(TRUNK, OBS + ACT)
         w[f"{c}.trunk.fc0.bias"] = u(TRUNK)
         core(c, TRUNK)
-        w[f"{c}.head.weight"] = u(1, HID)
-        w[f"{c}.head.bias"] = u(1)
+        w[f"{c}.head.weight"] = u(atoms, HID)
+        w[f"{c}.head.bias"] = u(atoms)
     for name in [n for n in w if n.startswith("critic")]:
         w[f"target.{name}"] = w[name] + u(*w[name].shape) * 0.1
     w["log_alpha"] = torch.tensor([math.log(INIT_ALPHA)])
@@ -114,9 +116,28 @@ class Actor(Net):
 
 
 class Critic(Net):
-    def step(self, o, a, hc):
+    def atoms(self, o, a, hc):
+        """The head's values (one, or TQC's atoms) and the next state."""
         y, hc = self.cell(self.trunk(torch.cat([o, a])), hc)
-        return self.head(y)[0], hc
+        return self.head(y), hc
+
+    def step(self, o, a, hc):
+        """The value (the atoms' mean) and the next state."""
+        z, hc = self.atoms(o, a, hc)
+        return z.mean(), hc
+
+
+def quantile_huber(y, z):
+    """TQC's Eq. (11) for one critic at one step: atoms `z` [M] towards targets `y` [K]."""
+    m = z.shape[0]
+    total = torch.zeros(())
+    for j in range(m):
+        tau = (2 * j + 1) / (2 * m)
+        for yk in y:
+            d = yk - z[j]
+            huber = 0.5 * d**2 if d.abs() <= 1 else d.abs() - 0.5
+            total = total + abs(tau - float(d < 0)) * huber
+    return total / (m * y.shape[0])
 
 
 def sample(m, log_s, eps):
@@ -173,6 +194,7 @@ def update(w, b, cfg, recurrent: bool, bptt: bool):
     targets = [Critic(w, f"target.{c}", recurrent) for c in ("critic", "critic2")]
     weights = [lam**i for i in range(u_len)]
     weights = [x / sum(weights) for x in weights]
+    tqc = cfg["sac"].get("tqc")
 
     def scanned_actor(k):
         hc = actor.zero()
@@ -199,13 +221,17 @@ def update(w, b, cfg, recurrent: bool, bptt: bool):
             actor_states.append(states)
             m, log_s, _ = actor.step(obs[k, s + ln], hc)
             a_tail, logp_tail = sample(m, log_s, eps_tail[k])
-            qs = []
+            zs = []
             for t in targets:
                 hc = scanned_critic(t, k)
                 for i in range(ln):
                     _, hc = t.step(obs[k, s + i], act[k, s + i], hc)
-                qs.append(t.step(obs[k, s + ln], a_tail, hc)[0])
-            v = torch.minimum(qs[0], qs[1]) - alpha * logp_tail
+                zs.append(t.atoms(obs[k, s + ln], a_tail, hc)[0])
+            if tqc is None:
+                v = torch.minimum(zs[0].mean(), zs[1].mean()) - alpha * logp_tail
+            else:  # the pooled atoms, sorted, the largest drop_per_critic per critic dropped
+                pooled = torch.sort(torch.cat(zs)).values
+                v = pooled[: len(pooled) - 2 * tqc["drop_per_critic"]] - alpha * logp_tail
             v = v * (1 - b["tail_terminated"][k])
             y = [sum(GAMMA ** (j - i) * rew[k, s + j] for j in range(i, ln)) + GAMMA ** (ln - i) * v
                  for i in range(ln)]
@@ -219,8 +245,12 @@ def update(w, b, cfg, recurrent: bool, bptt: bool):
             with torch.no_grad():
                 hc = scanned_critic(c, k)  # the scan has no gradient
             for i in range(min(u_len, b["opt_len"][k])):
-                q, hc = c.step(obs[k, s + i], act[k, s + i], hc)
-                loss = loss + weights[i] * (ys[k][i] - q) ** 2
+                if tqc is None:
+                    q, hc = c.step(obs[k, s + i], act[k, s + i], hc)
+                    loss = loss + weights[i] * (ys[k][i] - q) ** 2
+                else:
+                    z, hc = c.atoms(obs[k, s + i], act[k, s + i], hc)
+                    loss = loss + weights[i] * quantile_huber(ys[k][i], z)
     critic_loss = loss / n
     critic_loss.backward()
     adam_step(critic_params, LR_C, L2)
@@ -248,7 +278,8 @@ def update(w, b, cfg, recurrent: bool, bptt: bool):
             start = hc if bptt else actor_states[k][i]
             m, log_s, hc = actor.step(obs[k, s + i], start)
             a, logp = sample(m, log_s, eps_actor[k * l + i])
-            q = torch.minimum(*[critics[j].step(obs[k, s + i], a, hcs[j][i])[0] for j in range(2)])
+            q2 = [critics[j].step(obs[k, s + i], a, hcs[j][i])[0] for j in range(2)]
+            q = torch.minimum(*q2) if tqc is None else (q2[0] + q2[1]) / 2
             actor_loss = actor_loss + (alpha * logp - q) / ln
             logps.append(logp.detach() / ln)
     actor_loss = actor_loss / n
@@ -274,7 +305,7 @@ def update(w, b, cfg, recurrent: bool, bptt: bool):
     }
 
 
-def case(name, recurrent, bptt, seed):
+def case(name, recurrent, bptt, seed, tqc=None):
     rng = np.random.default_rng(seed)
     if recurrent:
         s, l, u = 2, 3, 2
@@ -290,9 +321,9 @@ def case(name, recurrent, bptt, seed):
         "lambda": 0.8, "tau": TAU, "twin_critic": True, "actor_bptt": bptt,
         "device": "cpu", "num_threads": 1, "flush_denormal": False,
         "sac": {"init_alpha": INIT_ALPHA, "learn_alpha": True,
-                "target_entropy": TARGET_ENTROPY, "lr_alpha": LR_ALPHA},
+                "target_entropy": TARGET_ENTROPY, "lr_alpha": LR_ALPHA, "tqc": tqc},
     }
-    w = make_weights(rng, recurrent)
+    w = make_weights(rng, recurrent, 1 if tqc is None else tqc["quantiles"])
     before = {k: v.clone().ravel().tolist() for k, v in w.items()}
     logged = update(w, batch, cfg, recurrent, bptt)
     after = {k: v.detach().ravel().tolist() for k, v in w.items()}
@@ -301,8 +332,10 @@ def case(name, recurrent, bptt, seed):
 
 
 def main():
+    tqc = {"quantiles": 3, "drop_per_critic": 1}
     cases = [case("feed-forward", False, False, 1), case("lstm", True, False, 2),
-             case("lstm-bptt", True, True, 3)]
+             case("lstm-bptt", True, True, 3), case("tqc-feed-forward", False, False, 4, tqc),
+             case("tqc-lstm", True, False, 5, tqc)]
     OUT.write_text(json.dumps({"cases": cases}, indent=None) + "\n")
     print(f"wrote {OUT} ({OUT.stat().st_size} bytes)")
 

@@ -11,7 +11,8 @@
 //! SAC must learn the same swing-up with its temperature tracking the entropy target.
 
 use rdpg_agents::rdpg::{
-    ExplorationConfig, ForkConfig, OffPolicyConfig, OffPolicyTrainer, SacConfig, TargetNoise, Trunk,
+    ExplorationConfig, ForkConfig, OffPolicyConfig, OffPolicyTrainer, SacConfig, TargetNoise,
+    TqcConfig, Trunk,
 };
 use rdpg_agents::{Quiet, RdpgConfig, TrainConfig, TrainObserver, Trainer, UpdateStats};
 
@@ -207,11 +208,26 @@ impl TrainObserver for SacTrace {
 /// policy's entropy approaches the target (-1).
 #[test]
 fn sac_learns_the_pendulum_swing_up() {
+    soft_swing_up(None);
+}
+
+/// The same with TQC's critics (5 atoms each, 1 dropped per critic).
+#[test]
+fn tqc_learns_the_pendulum_swing_up() {
+    soft_swing_up(Some(TqcConfig {
+        quantiles: 5,
+        drop_per_critic: 1,
+    }));
+}
+
+fn soft_swing_up(tqc: Option<TqcConfig>) {
     let (train, off, base) = pendulum_setting(ExplorationConfig::None);
+    let name = if tqc.is_some() { "tqc" } else { "sac" };
     let sac = RdpgConfig {
         tau: 0.01,
         sac: Some(SacConfig {
             lr_alpha: 1e-3,
+            tqc,
             ..SacConfig::default()
         }),
         ..base
@@ -223,12 +239,12 @@ fn sac_learns_the_pendulum_swing_up() {
     let after = t.evaluate().unwrap().mean_return;
     let (a0, a1) = (seen.alpha[0], *seen.alpha.last().unwrap());
     let h1 = seen.entropy[seen.entropy.len() - 100..].iter().sum::<f64>() / 100.0;
-    eprintln!("sac: eval {before:.1} -> {after:.1}; alpha {a0:.3} -> {a1:.3}; entropy {h1:.2}");
+    eprintln!("{name}: eval {before:.1} -> {after:.1}; alpha {a0:.3} -> {a1:.3}; entropy {h1:.2}");
     assert_eq!(seen.alpha.len(), 7_000);
     assert!(a1 < 0.5 * a0, "the temperature did not fall: {a0} -> {a1}");
     assert!(h1 < 2.0, "the policy's entropy stayed at {h1}");
     assert!(
         after > -500.0,
-        "SAC did not learn the swing-up: {before:.1} -> {after:.1}"
+        "{name} did not learn the swing-up: {before:.1} -> {after:.1}"
     );
 }

@@ -11,7 +11,8 @@
 //! [agent]                         # rdpg_agents::RdpgConfig (rdpg, ddpg, sac)
 //! scan_len = 120
 //! [agent.sac]                     # rdpg_agents::rdpg::SacConfig (sac only; its exploration
-//! init_alpha = 1.0                #   defaults to kind = "none")
+//! init_alpha = 1.0                #   defaults to kind = "none"; `tqc = { quantiles = 25,
+//!                                 #   drop_per_critic = 2 }` for TQC's critics)
 //! [ppo]                           # rdpg_agents::PpoConfig (ppo)
 //! [run]                           # RunConfig: checkpoints, kept agents
 //! checkpoint_every = 50_000

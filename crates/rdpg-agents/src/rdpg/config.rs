@@ -9,6 +9,7 @@
 use crate::common::config::is_f32;
 use serde::{Deserialize, Serialize};
 
+pub use super::sac_config::{SacConfig, TqcConfig, LOG_STD_RANGE};
 use crate::common::tensor::DeviceSpec;
 use crate::error::{AgentError, Result};
 
@@ -101,47 +102,6 @@ impl Default for ForkConfig {
         }
     }
 }
-
-/// Soft actor-critic (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"):
-/// the actor is a squashed Gaussian `a = tanh(u)`, `u ~ N(m(o), s(o)^2)`, whose output layer
-/// gives the mean and the log standard deviation (clamped to [`LOG_STD_RANGE`]); the targets and
-/// the actor loss carry the entropy bonus `-alpha log pi(a | o)`, and the temperature `alpha`
-/// is learned towards a target entropy or held fixed (see `sac.rs`). Acting samples the policy
-/// (no action noise); evaluation and a shipped policy act with the mean, `tanh(m(o))`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SacConfig {
-    /// The temperature `alpha` at the start (> 0). Stable-Baselines3: 1.0.
-    pub init_alpha: f64,
-    /// Learn `alpha` (its logarithm, by Adam at `lr_alpha`) so that the policy's entropy
-    /// tracks `target_entropy`; `false` keeps `init_alpha`.
-    pub learn_alpha: bool,
-    /// The entropy the temperature steers towards; `None`: `-act_dim` (Haarnoja et al.).
-    pub target_entropy: Option<f64>,
-    /// Adam learning rate of `log alpha`. Stable-Baselines3: the actor's (3e-4).
-    pub lr_alpha: f64,
-}
-
-impl Default for SacConfig {
-    fn default() -> Self {
-        Self {
-            init_alpha: 1.0,
-            learn_alpha: true,
-            target_entropy: None,
-            lr_alpha: 3e-4,
-        }
-    }
-}
-
-impl SacConfig {
-    /// The target entropy for `act_dim` actions: `target_entropy`, or `-act_dim`.
-    pub fn target_entropy(&self, act_dim: usize) -> f64 {
-        self.target_entropy.unwrap_or(-(act_dim as f64))
-    }
-}
-
-/// The range a SAC actor's log standard deviation is clamped to (Stable-Baselines3's).
-pub const LOG_STD_RANGE: (f64, f64) = (-20.0, 2.0);
 
 /// All hyper-parameters of [`RdpgAgent`](super::RdpgAgent). Every field has a default (see
 /// [`RdpgConfig::default`]); a JSON config may give any subset, unknown fields are rejected.
@@ -629,6 +589,20 @@ impl RdpgConfig {
         if sac.target_entropy.is_some_and(|h| !is_f32(h)) {
             return Err(bad("sac.target_entropy", "must be finite"));
         }
+        if let Some(t) = &sac.tqc {
+            if t.quantiles == 0 || t.quantiles > 1000 {
+                return Err(bad("sac.tqc.quantiles", "must be in 1..=1000"));
+            }
+            if t.drop_per_critic >= t.quantiles {
+                return Err(bad(
+                    "sac.tqc.drop_per_critic",
+                    format!(
+                        "must be below quantiles ({}): every critic keeps an atom",
+                        t.quantiles
+                    ),
+                ));
+            }
+        }
         let refuse = |field: &'static str, why: &str| {
             Err(bad(
                 field,
@@ -672,6 +646,14 @@ impl RdpgConfig {
             );
         }
         Ok(())
+    }
+
+    /// Outputs of each critic: TQC's atoms per critic, or 1 (the value).
+    pub fn critic_outputs(&self) -> usize {
+        self.sac
+            .as_ref()
+            .and_then(|s| s.tqc.as_ref())
+            .map_or(1, |t| t.quantiles)
     }
 
     /// The width of the observation embedding produced by the trunk.
@@ -730,15 +712,16 @@ impl RdpgConfig {
         let out = if self.sac.is_some() { 2.0 * a } else { a };
         let actor = trunk(d) + core(e, ha) + head(e, ha, &self.actor_head, out);
         let af = self.critic_action_fc as f64;
+        let q_out = self.critic_outputs() as f64;
         let critic = if self.critic_action_after_core {
             // The raw action joins the head's input: one more input to its first layer.
-            trunk(d) + core(e, hc) + head(e, hc + a, &self.critic_head, 1.0)
+            trunk(d) + core(e, hc) + head(e, hc + a, &self.critic_head, q_out)
         } else {
             let input = match self.critic_action_fc {
                 0 => trunk(d + a),
                 _ => trunk(d) + linear(a, af),
             };
-            input + core(e + af, hc) + head(e + af, hc, &self.critic_head, 1.0)
+            input + core(e + af, hc) + head(e + af, hc, &self.critic_head, q_out)
         };
         let critics = if self.twin_critic { 2.0 } else { 1.0 };
         let copies = if self.tau > 0.0 { 2.0 } else { 1.0 };

@@ -140,12 +140,13 @@ fn nets(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> (Net, Net) {
         ),
     };
     let af = cfg.critic_action_fc as i64;
+    let q_out = cfg.critic_outputs() as i64;
     let critic = if cfg.critic_action_after_core {
         // The raw action joins the core's output at the head's input.
         Net {
             trunk: trunk_shapes(cfg, d),
             core: core(e, cfg.critic_hidden),
-            head: head(e, cfg.critic_hidden + act_dim, &cfg.critic_head, 1),
+            head: head(e, cfg.critic_hidden + act_dim, &cfg.critic_head, q_out),
         }
     } else {
         let mut trunk = trunk_shapes(cfg, if af == 0 { d + a } else { d });
@@ -155,7 +156,7 @@ fn nets(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> (Net, Net) {
         Net {
             trunk,
             core: core(e + af, cfg.critic_hidden),
-            head: head(e + af, cfg.critic_hidden, &cfg.critic_head, 1),
+            head: head(e + af, cfg.critic_hidden, &cfg.critic_head, q_out),
         }
     };
     (actor, critic)

@@ -10,7 +10,8 @@
 //! * [`update`]: Algorithm 1's `Update()`, top to bottom (its two-thread schedule in
 //!   `twins.rs`, the batch it reads in `prepared.rs`); [`profile`]: its per-phase times;
 //!   [`fork`]: FORK's models and forward-looking actor term (feed-forward agents);
-//!   `sac.rs`: soft actor-critic's update, top to bottom;
+//!   `sac.rs`: soft actor-critic's update, top to bottom (`tqc.rs`: its truncated quantile
+//!   critics);
 //!   [`checkpoint`]: save and load.
 //! * [`trainer`]: [`OffPolicyTrainer`], Algorithm 1's outer loop; [`inject`]: experience
 //!   injection from teacher files.
@@ -31,6 +32,8 @@ pub mod off_policy;
 mod prepared;
 pub mod profile;
 mod sac;
+mod sac_config;
+mod tqc;
 pub mod trainer;
 mod twins;
 pub mod update;
@@ -38,7 +41,7 @@ pub mod update;
 pub use agent::{ActorState, RdpgAgent};
 pub use config::{
     memory_task_config, CriticTarget, ForkConfig, RdpgConfig, SacConfig, ScanMethod, TargetNoise,
-    Trunk,
+    TqcConfig, Trunk,
 };
 pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
 pub use profile::PhaseTimes;

@@ -327,7 +327,8 @@ pub struct Critic {
     pub head_mlp: Mlp,
     /// Whether the head reads the core's input beside its output (`core_skip`).
     pub skip: bool,
-    /// Output layer `H -> 1` (from the last head layer, or `E + H` with `core_skip`).
+    /// Output layer `H -> M` (from the last head layer, or `E + H` with `core_skip`): `M = 1`,
+    /// the value, or TQC's `M` atoms (`sac.tqc.quantiles`), whose mean is the value.
     pub head: nn::Linear,
     /// Whether the action joins after the core, at the head's input
     /// (`critic_action_after_core`) instead of before it.
@@ -365,7 +366,8 @@ impl Critic {
         let h = cfg.critic_hidden as i64;
         let core = Core::new(&(p / "core"), cfg.recurrent, e, h);
         let extra = if after { act_dim } else { 0 };
-        let (head_mlp, head) = head_layers(p, cfg.core_skip, (e, h, extra), &cfg.critic_head, 1);
+        let out = cfg.critic_outputs() as i64;
+        let (head_mlp, head) = head_layers(p, cfg.core_skip, (e, h, extra), &cfg.critic_head, out);
         Self {
             trunk,
             act_fc,
@@ -393,25 +395,45 @@ impl Critic {
         }
     }
 
-    /// Core input and output (and the action) -> Q: `x [.., E]`, `y [.., H]`, `act [.., A]`
-    /// -> `[..]` (`x` is read only with `core_skip`, `act` only with the action after the
-    /// core).
-    pub fn head(&self, x: &Tensor, y: &Tensor, act: &Tensor) -> Tensor {
+    /// Core input and output (and the action) -> the output layer's `M` values: `x [.., E]`,
+    /// `y [.., H]`, `act [.., A]` -> `[.., M]` (`x` is read only with `core_skip`, `act` only
+    /// with the action after the core).
+    pub fn atoms(&self, x: &Tensor, y: &Tensor, act: &Tensor) -> Tensor {
         let mut input = head_input(self.skip, x, y);
         if self.action_after_core {
             input = Tensor::cat(&[input, act.shallow_clone()], -1);
         }
-        self.head
-            .forward(&self.head_mlp.forward(&input))
-            .squeeze_dim(-1)
+        self.head.forward(&self.head_mlp.forward(&input))
+    }
+
+    /// The value of the output layer's values `[.., M]`: `[..]`, the one value or the mean of
+    /// TQC's atoms.
+    pub fn value(z: &Tensor) -> Tensor {
+        if z.size().last() == Some(&1) {
+            z.squeeze_dim(-1)
+        } else {
+            z.mean_dim(-1, false, z.kind())
+        }
+    }
+
+    /// Q from the core's input and output (and the action): `[..]` (see [`Critic::atoms`]).
+    pub fn head(&self, x: &Tensor, y: &Tensor, act: &Tensor) -> Tensor {
+        Self::value(&self.atoms(x, y, act))
+    }
+
+    /// The output layer's values along a sequence: `obs [B, T, D]`, `act [B, T, A]` from `h0`
+    /// -> (`[B, T, M]`, final state).
+    pub fn atoms_seq(&self, obs: &Tensor, act: &Tensor, h0: &RecState) -> (Tensor, RecState) {
+        let x = self.input_seq(obs, act);
+        let (y, s) = self.core.seq(&x, h0);
+        (self.atoms(&x, &y, act), s)
     }
 
     /// Q along a sequence: `obs [B, T, D]`, `act [B, T, A]` from `h0` -> (`[B, T]`, final
     /// state).
     pub fn forward_seq(&self, obs: &Tensor, act: &Tensor, h0: &RecState) -> (Tensor, RecState) {
-        let x = self.input_seq(obs, act);
-        let (y, s) = self.core.seq(&x, h0);
-        (self.head(&x, &y, act), s)
+        let (z, s) = self.atoms_seq(obs, act, h0);
+        (Self::value(&z), s)
     }
 
     /// Core input for single steps: `obs [N, D]`, `act [N, A]` -> `[N, E + 64]` (`[N, E]`
@@ -430,11 +452,17 @@ impl Critic {
         }
     }
 
-    /// One step: `obs [B, D]`, `act [B, A]` -> (`[B]`, next state).
-    pub fn step(&self, obs: &Tensor, act: &Tensor, s: &RecState) -> (Tensor, RecState) {
+    /// One step's output-layer values: `obs [B, D]`, `act [B, A]` -> (`[B, M]`, next state).
+    pub fn atoms_step(&self, obs: &Tensor, act: &Tensor, s: &RecState) -> (Tensor, RecState) {
         let x = self.input(obs, act);
         let (y, s) = self.core.step(&x, s);
-        (self.head(&x, &y, act), s)
+        (self.atoms(&x, &y, act), s)
+    }
+
+    /// One step: `obs [B, D]`, `act [B, A]` -> (`[B]`, next state).
+    pub fn step(&self, obs: &Tensor, act: &Tensor, s: &RecState) -> (Tensor, RecState) {
+        let (z, s) = self.atoms_step(obs, act, s);
+        (Self::value(&z), s)
     }
 }
 

@@ -31,10 +31,13 @@
 //!    (with `l = 1` this is the paper's target exactly). Loss and weights as RDPG's:
 //!    `sum_j 1/N sum_n sum_{i < min(u, len_n)} w_i (y_i - Q_j(o_i, a_i | h_{i-1}))^2`, the
 //!    critics back-propagated through the window; Adam (with L2), then the actor reads them.
+//!    With `sac.tqc` the critics output atoms and the target is TQC's truncated mixture, the
+//!    loss the quantile Huber loss (`tqc.rs`).
 //! 3. **Actor** (Eqs. (7) and (9)):
 //!    `J_pi = 1/N sum_n 1/len_n sum_{i < len_n} [alpha log pi(a~_i | o_i) - min_j Q_j(o_i, a~_i | h^C_{i-1})]`,
 //!    `a~_i` a fresh reparameterised sample at every step; without BPTT (the default) the
-//!    actor's state before each step is a constant, as for RDPG. Adam.
+//!    actor's state before each step is a constant, as for RDPG. Adam. With `sac.tqc` the
+//!    mean over critics (of their atoms' means) replaces the min.
 //! 4. **Temperature** (Eq. (18), in `log alpha` as the authors' softlearning code steps it):
 //!    `J(log alpha) = -log alpha * 1/N sum_n 1/len_n sum_i (log pi(a~_i | o_i) + H_target)`, the
 //!    log-probabilities of step 3 held constant; Adam. Skipped when `learn_alpha = false`.
@@ -55,11 +58,12 @@ use tch::Tensor;
 use super::agent::RdpgAgent;
 use super::config::ScanMethod;
 use super::lstm::{scan_state, RecState};
-use super::nets::Actor;
+use super::nets::{Actor, Critic};
 use super::prepared::Prepared;
 use super::profile::Clock;
+use super::tqc::{combine_critics, quantile_huber_loss, trained_atoms, truncated_targets};
 use super::update::{
-    critic_loss_from, critic_states, min_all, scan_actor, scan_critic, soft_update, target_q,
+    critic_loss_from, critic_states, min_all, scan_actor, scan_critic, soft_update, target_atoms,
     td_targets, trained_q, ActorInput, Scanned,
 };
 use crate::common::UpdateStats;
@@ -101,29 +105,48 @@ impl RdpgAgent {
             let (m, log_s) = self.actor.gaussian(&x_tail, &y_tail);
             squashed_sample(&m, &log_s, &eps_tail) // [N, A], [N]
         });
-        let v_tail = tch::no_grad(|| {
+        let tqc = self.cfg.sac.as_ref().and_then(|s| s.tqc.clone());
+        // Each target critic's output at (o_tail, a_tail): [N, M] (M = 1 without TQC).
+        let tail_atoms: Vec<Tensor> = tch::no_grad(|| {
             let t = self.targets.as_ref();
-            let qs: Vec<Tensor> = t
-                .map(|t| &t.critics)
+            t.map(|t| &t.critics)
                 .into_iter()
                 .flatten()
                 .zip(&sc.target_critics)
-                .map(|(c, h)| target_q(c, &p, h, &a_tail))
-                .collect();
-            min_all(&qs) - &logp_tail * alpha // [N]
+                .map(|(c, h)| target_atoms(c, &p, h, &a_tail))
+                .collect()
         });
-        let y = tch::no_grad(|| td_targets(&p, &v_tail)); // [N, l]
-        clock.lap(|t| &mut t.window_nograd);
-        let q_sa: Vec<Tensor> = self
-            .critics
-            .iter()
-            .zip(&sc.critics)
-            .map(|(c, h)| trained_q(c, &p, h)) // [N, u] each
-            .collect();
-        let critic_loss = q_sa
-            .iter()
-            .map(|q| critic_loss_from(&p, q, &y))
-            .fold(Tensor::from(0.0).to_kind(self.kind), |a, b| a + b);
+        let (critic_loss, q_sa) = match &tqc {
+            None => {
+                let qs: Vec<Tensor> = tail_atoms.iter().map(Critic::value).collect(); // [N]
+                let v_tail = min_all(&qs) - &logp_tail * alpha; // [N]
+                let y = tch::no_grad(|| td_targets(&p, &v_tail)); // [N, l]
+                clock.lap(|t| &mut t.window_nograd);
+                let q_sa: Vec<Tensor> = self
+                    .critics
+                    .iter()
+                    .zip(&sc.critics)
+                    .map(|(c, h)| trained_q(c, &p, h)) // [N, u] each
+                    .collect();
+                let loss: Tensor = q_sa.iter().map(|q| critic_loss_from(&p, q, &y)).sum();
+                (loss, q_sa)
+            }
+            Some(t) => {
+                // TQC (tqc.rs): the pooled atoms truncated, the quantile Huber loss.
+                let y = tch::no_grad(|| {
+                    truncated_targets(&p, &tail_atoms, &logp_tail, alpha, t.drop_per_critic)
+                }); // [N, l, K]
+                clock.lap(|t| &mut t.window_nograd);
+                let z_sa: Vec<Tensor> = self
+                    .critics
+                    .iter()
+                    .zip(&sc.critics)
+                    .map(|(c, h)| trained_atoms(c, &p, h)) // [N, u, M] each
+                    .collect();
+                let loss: Tensor = z_sa.iter().map(|z| quantile_huber_loss(&p, z, &y)).sum();
+                (loss, z_sa.iter().map(Critic::value).collect())
+            }
+        };
         self.critic_opt.zero_grad();
         critic_loss.backward();
         if let Some(c) = self.cfg.grad_clip {
@@ -150,7 +173,8 @@ impl RdpgAgent {
         for vs in &mut self.critic_vs {
             vs.freeze();
         }
-        let (actor_loss, logp) = soft_actor_loss(self, &p, input, &critic_states, &eps, alpha);
+        let (actor_loss, logp) =
+            soft_actor_loss(self, &p, input, &critic_states, &eps, alpha, tqc.is_some());
         self.actor_opt.zero_grad();
         actor_loss.backward();
         for vs in &mut self.critic_vs {
@@ -284,6 +308,7 @@ pub(super) fn soft_actor_loss(
     critic_states: &[(Tensor, Tensor)],
     eps: &Tensor,
     alpha: f64,
+    tqc: bool,
 ) -> (Tensor, Tensor) {
     let (n, l) = (p.n, p.l);
     let actor: &Actor = &agent.actor;
@@ -323,7 +348,7 @@ pub(super) fn soft_actor_loss(
             critic.step(&obs_flat, &a, &st).0 // [N*l]
         })
         .collect();
-    let per_step = (&logp * alpha - min_all(&qs)).reshape([n, l]); // [N, l]
+    let per_step = (&logp * alpha - combine_critics(&qs, tqc)).reshape([n, l]); // [N, l]
     let loss = (per_step * &p.actor_w).sum(a.kind()) / n as f64;
     (loss, logp)
 }

@@ -608,17 +608,25 @@ pub(super) fn scan_target_critic(critic: &Critic, p: &Prepared, method: ScanMeth
 /// gradient): its run along the window with `a_tail` at the tail position, or for a
 /// feed-forward critic one forward pass on the tail observation.
 pub(super) fn target_q(c: &Critic, p: &Prepared, h: &RecState, a_tail: &Tensor) -> Tensor {
+    Critic::value(&target_atoms(c, p, h, a_tail))
+}
+
+/// [`target_q`] before the value is taken: the output layer's `M` values at
+/// `(o_tail, a_tail)`, `[N, M]` (TQC's atoms; `M = 1` otherwise).
+pub(super) fn target_atoms(c: &Critic, p: &Prepared, h: &RecState, a_tail: &Tensor) -> Tensor {
     if let Some(w) = &p.window_tail {
         // Window-of-k: the k - 1 pairs before the tail from a zero state, then the tail.
         let h0 = c.core.zero_state(p.n, p.obs_win.kind(), p.obs_win.device());
         let x = c.input_seq(&w.obs, &w.act); // [N, k-1, E]
         let h = scan_state(&c.core, &x, &w.len, &h0, ScanMethod::Grouped);
-        return c.step(&tail_obs(p), a_tail, &h).0;
+        return c.atoms_step(&tail_obs(p), a_tail, &h).0;
     }
     if c.core.is_recurrent() {
-        tail_q(p, &critic_window(c, p, h, Some(a_tail)))
+        let (obs, act) = window_pairs(p, Some(a_tail));
+        let z = c.atoms_seq(&obs, &act, h).0; // [N, l+1, M]
+        (z * p.tail_onehot.unsqueeze(-1)).sum_dim_intlist(1, false, p.obs_win.kind())
     } else {
-        c.step(&tail_obs(p), a_tail, h).0
+        c.atoms_step(&tail_obs(p), a_tail, h).0
     }
 }
 
@@ -641,7 +649,15 @@ pub(super) fn critic_window(
     h: &RecState,
     a_tail: Option<&Tensor>,
 ) -> Tensor {
-    let (obs, act) = match a_tail {
+    let (obs, act) = window_pairs(p, a_tail);
+    critic.forward_seq(&obs, &act, h).0
+}
+
+/// The critic's inputs along the window, `([N, l, D], [N, l, A])`; with `a_tail`, one more
+/// position where the tail position `len_n` holds `(o_tail, a_tail)`,
+/// `([N, l + 1, D], [N, l + 1, A])`.
+pub(super) fn window_pairs(p: &Prepared, a_tail: Option<&Tensor>) -> (Tensor, Tensor) {
+    match a_tail {
         Some(at) => {
             let n = p.n;
             let a_dim = p.act_win.size()[2];
@@ -654,8 +670,7 @@ pub(super) fn critic_window(
             )
         }
         None => (p.obs_win.narrow(1, 0, p.l), p.act_win.shallow_clone()),
-    };
-    critic.forward_seq(&obs, &act, h).0
+    }
 }
 
 /// `Q(o_i, a_i | h_{i-1})` of `critic` on the steps the loss trains, the first `u` of the
@@ -718,17 +733,24 @@ pub(super) fn td_targets(p: &Prepared, q_tail: &Tensor) -> Tensor {
 /// order as a run over the whole window, bit for bit.
 pub(super) fn critic_loss_from(p: &Prepared, q_sa: &Tensor, y: &Tensor) -> Tensor {
     let w = q_sa.size()[1];
-    let mut sq = (y.narrow(1, 0, w) - q_sa).square(); // [N, w]
+    weighted_window_sum(p, (y.narrow(1, 0, w) - q_sa).square())
+}
+
+/// `1/N sum_n sum_i w_{n,i} e_{n,i}` of per-step errors `e [N, w]` on the first `w <= l`
+/// window steps, summed in the window's `[N, l]` layout (zero past `w`).
+pub(super) fn weighted_window_sum(p: &Prepared, e: Tensor) -> Tensor {
+    let w = e.size()[1];
+    let mut e = e;
     if w < p.l {
-        sq = Tensor::cat(
+        e = Tensor::cat(
             &[
-                sq.shallow_clone(),
-                sq.new_zeros([p.n, p.l - w], (sq.kind(), sq.device())),
+                e.shallow_clone(),
+                e.new_zeros([p.n, p.l - w], (e.kind(), e.device())),
             ],
             1,
         );
     }
-    (&p.critic_w * sq).sum(q_sa.kind()) / p.n as f64
+    (&p.critic_w * &e).sum(e.kind()) / p.n as f64
 }
 
 /// Where the actor's recurrent input comes from in the actor loss.

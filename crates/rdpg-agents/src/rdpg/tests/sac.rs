@@ -8,9 +8,9 @@ use std::collections::HashMap;
 use serde_json::Value;
 
 use super::*;
-use crate::rdpg::config::SacConfig;
+use crate::rdpg::config::{SacConfig, TqcConfig};
 use crate::rdpg::sac::{soft_actor_loss, squashed_sample};
-use crate::rdpg::update::critic_states;
+use crate::rdpg::update::{critic_states, target_atoms};
 
 const FIXTURE: &str = include_str!("../../../../../tests/fixtures/sac_update.json");
 
@@ -119,17 +119,22 @@ fn sac_cfg(recurrent: bool) -> RdpgConfig {
     }
 }
 
-/// The soft bootstrap: with the critics' and the actor's learning rates tiny and `alpha`
-/// fixed, the critic loss of an update equals the one built from `rdpg_core::targets` on the
-/// window's rewards with `min Q'(o_tail, a_tail) - alpha log pi(a_tail)` at the tail, both
-/// computed from the agent before the update with the same noise.
+/// The soft bootstrap: with `alpha` fixed, the critic loss of an update equals the one built
+/// from `rdpg_core::targets` on the window's rewards with `min Q'(o_tail, a_tail) - alpha log
+/// pi(a_tail)` at the tail (SAC), or with each of TQC's kept atoms there and the quantile
+/// Huber loss written out, all computed from the agent before the update with the same noise.
 #[test]
 fn the_soft_tail_target_is_the_interpolated_td_with_the_entropy_at_the_bootstrap() {
-    for recurrent in [true, false] {
+    let tqc = TqcConfig {
+        quantiles: 3,
+        drop_per_critic: 1,
+    };
+    for (recurrent, tqc) in [(true, None), (false, None), (true, Some(tqc))] {
         let cfg = RdpgConfig {
             sac: Some(SacConfig {
                 init_alpha: 0.7,
                 learn_alpha: false,
+                tqc: tqc.clone(),
                 ..Default::default()
             }),
             ..sac_cfg(recurrent)
@@ -151,36 +156,90 @@ fn the_soft_tail_target_is_the_interpolated_td_with_the_entropy_at_the_bootstrap
         });
         let (m, log_s) = agent.actor.gaussian(&x, &y);
         let (a_tail, logp) = squashed_sample(&m, &log_s, &eps);
+        let logp = to_vec64(&logp);
         let t = agent.targets.as_ref().unwrap();
-        let q: Vec<Tensor> = t
+        // Each target critic's atoms at the tail, per window: [critic][n][M].
+        let atoms: Vec<Vec<Vec<f64>>> = t
             .critics
             .iter()
             .zip(&sc.target_critics)
-            .map(|(c, h)| target_q(c, &p, h, &a_tail))
+            .map(|(c, h)| {
+                let z = target_atoms(c, &p, h, &a_tail);
+                let m = z.size()[1] as usize;
+                to_vec64(&z).chunks(m).map(<[f64]>::to_vec).collect()
+            })
             .collect();
-        let v = to_vec64(&(q[0].minimum(&q[1]) - logp * 0.7));
-        // The reference: per window, rdpg_core::targets on its rewards and that tail value.
-        let l = cfg.opt_len;
-        let mut want = 0.0;
-        let critic_q: Vec<Vec<f64>> = agent
+        // The bootstrap values per window: SAC's one (min of the two means), TQC's K kept
+        // atoms (pooled, sorted, the largest d per critic dropped); minus alpha log pi.
+        let tails: Vec<Vec<f64>> = (0..b.n)
+            .map(|k| {
+                let mean = |z: &[f64]| z.iter().sum::<f64>() / z.len() as f64;
+                let kept = match &tqc {
+                    None => vec![mean(&atoms[0][k]).min(mean(&atoms[1][k]))],
+                    Some(t) => {
+                        let mut pooled: Vec<f64> =
+                            atoms.iter().flat_map(|a| a[k].clone()).collect();
+                        pooled.sort_by(f64::total_cmp);
+                        pooled.truncate(pooled.len() - 2 * t.drop_per_critic);
+                        pooled
+                    }
+                };
+                kept.iter().map(|z| z - 0.7 * logp[k]).collect()
+            })
+            .collect();
+        // The reference: per window and kept atom, rdpg_core::targets on its rewards and that
+        // tail value; the squared error (SAC) or the quantile Huber loss (TQC).
+        let (l, u) = (cfg.opt_len, cfg.update_len);
+        let ys: Vec<Vec<f64>> = (0..tails[0].len())
+            .map(|j| {
+                let v: Vec<f64> = tails.iter().map(|t| t[j]).collect();
+                rdpg_core::targets::batch_tail_bootstrap_targets(&b, cfg.gamma, &v)
+                // [n, l]
+            })
+            .collect();
+        let critic_z: Vec<Vec<f64>> = agent
             .critics
             .iter()
             .zip(&sc.critics)
-            .map(|(c, h)| to_vec64(&super::super::update::trained_q(c, &p, h)))
+            .map(|(c, h)| to_vec64(&crate::rdpg::tqc::trained_atoms(c, &p, h)))
             .collect();
-        let w = rdpg_core::targets::interpolated_td_weights(cfg.update_len, cfg.lambda);
-        let y = rdpg_core::targets::batch_tail_bootstrap_targets(&b, cfg.gamma, &v); // [n, l]
+        let m = cfg.critic_outputs();
+        let w = rdpg_core::targets::interpolated_td_weights(u, cfg.lambda);
+        let mut want = 0.0;
         for k in 0..b.n {
-            let len = b.opt_len[k];
-            for q in &critic_q {
-                for i in 0..len.min(cfg.update_len) {
-                    let d = y[k * l + i] - q[k * cfg.update_len + i];
-                    want += w[i] * d * d / b.n as f64;
+            for z in &critic_z {
+                for i in 0..b.opt_len[k].min(u) {
+                    let at = |q: usize| z[(k * u + i) * m + q];
+                    let per_step = match &tqc {
+                        None => (ys[0][k * l + i] - at(0)).powi(2),
+                        Some(_) => {
+                            let mut sum = 0.0;
+                            for q in 0..m {
+                                let tau = (2 * q + 1) as f64 / (2 * m) as f64;
+                                for y in &ys {
+                                    let d = y[k * l + i] - at(q);
+                                    let huber = if d.abs() <= 1.0 {
+                                        0.5 * d * d
+                                    } else {
+                                        d.abs() - 0.5
+                                    };
+                                    sum += (tau - f64::from(u8::from(d < 0.0))).abs() * huber;
+                                }
+                            }
+                            sum / (m * ys.len()) as f64
+                        }
+                    };
+                    want += w[i] * per_step / b.n as f64;
                 }
             }
         }
         let stats = agent.update(&b).unwrap();
-        assert_close(&[stats.critic_loss], &[want], 1e-9, "soft critic loss");
+        assert_close(
+            &[stats.critic_loss],
+            &[want],
+            1e-9,
+            &format!("soft critic loss (tqc {})", tqc.is_some()),
+        );
         assert_eq!(stats.extra["alpha"], 0.7);
     }
 }
@@ -253,8 +312,8 @@ fn acting_samples_and_evaluating_takes_the_mean() {
 }
 
 /// A checkpoint holds `log_alpha` and its Adam moments (and no target actor): a loaded agent
-/// continues bit-identically, and its parameter count is the config's; for an LSTM agent and
-/// a window-of-k one (`act_window`).
+/// continues bit-identically, and its parameter count is the config's; for an LSTM agent, a
+/// window-of-k one (`act_window`) and one with TQC's critics.
 #[test]
 fn a_checkpoint_continues_identically() {
     let window = RdpgConfig {
@@ -263,7 +322,18 @@ fn a_checkpoint_continues_identically() {
         update_len: 1,
         ..sac_cfg(true)
     };
-    for cfg in [sac_cfg(true), window] {
+    let base = sac_cfg(true);
+    let tqc = RdpgConfig {
+        sac: Some(SacConfig {
+            tqc: Some(TqcConfig {
+                quantiles: 5,
+                drop_per_critic: 2,
+            }),
+            ..base.sac.clone().unwrap()
+        }),
+        ..base
+    };
+    for cfg in [sac_cfg(true), window, tqc] {
         checkpoint_round_trip(cfg);
     }
 }
@@ -288,7 +358,7 @@ fn checkpoint_round_trip(cfg: RdpgConfig) {
     assert_eq!(a.weights(), c.weights());
 }
 
-/// RDPG's options that do not apply to SAC are refused by name.
+/// RDPG's options that do not apply to SAC are refused by name, and TQC's impossible sizes.
 #[test]
 fn options_of_the_deterministic_learner_are_refused_by_name() {
     let sac = sac_cfg(false);
@@ -341,6 +411,32 @@ fn options_of_the_deterministic_learner_are_refused_by_name() {
             },
             "sac.init_alpha",
         ),
+        (
+            RdpgConfig {
+                sac: Some(SacConfig {
+                    tqc: Some(TqcConfig {
+                        quantiles: 3,
+                        drop_per_critic: 3,
+                    }),
+                    ..Default::default()
+                }),
+                ..sac.clone()
+            },
+            "sac.tqc.drop_per_critic",
+        ),
+        (
+            RdpgConfig {
+                sac: Some(SacConfig {
+                    tqc: Some(TqcConfig {
+                        quantiles: 0,
+                        drop_per_critic: 0,
+                    }),
+                    ..Default::default()
+                }),
+                ..sac.clone()
+            },
+            "sac.tqc.quantiles",
+        ),
     ] {
         let err = cfg.validate().unwrap_err().to_string();
         assert!(err.contains(field), "{field}: {err}");
@@ -348,14 +444,22 @@ fn options_of_the_deterministic_learner_are_refused_by_name() {
 }
 
 /// The actor loss's gradient (through the reparameterised sample, the tanh correction and the
-/// minimum over the twin critics) against finite differences, BPTT or not, the noise and the
-/// critics' states held fixed.
+/// minimum over the twin critics, or TQC's mean over their atoms) against finite differences,
+/// BPTT or not, the noise and the critics' states held fixed.
 #[test]
 fn the_actor_loss_gradient_matches_finite_differences() {
-    for bptt in [false, true] {
+    for (bptt, tqc) in [(false, false), (true, false), (false, true)] {
+        let base = sac_cfg(true);
         let cfg = RdpgConfig {
             actor_bptt: bptt,
-            ..sac_cfg(true)
+            sac: Some(SacConfig {
+                tqc: tqc.then_some(TqcConfig {
+                    quantiles: 4,
+                    drop_per_critic: 1,
+                }),
+                ..base.sac.clone().unwrap()
+            }),
+            ..base
         };
         let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 31, Kind::Double).unwrap();
         let b = batch(&cfg, 4, 0.5, 12);
@@ -380,11 +484,15 @@ fn the_actor_loss_gradient_matches_finite_differences() {
                 Some((h, c)) if !bptt => ActorInput::Detached { h, c },
                 _ => ActorInput::Bptt { h0: sc.actor() },
             };
-            soft_actor_loss(agent, &p, input, &cs, &eps, 0.4).0
+            soft_actor_loss(agent, &p, input, &cs, &eps, 0.4, tqc).0
         };
         agent.actor_opt.zero_grad();
         loss(&agent).backward();
         let f = || tch::no_grad(|| loss(&agent).double_value(&[]));
-        check_grads(&agent.actor_vs, &f, &format!("SAC actor (bptt {bptt})"));
+        check_grads(
+            &agent.actor_vs,
+            &f,
+            &format!("SAC actor (bptt {bptt}, tqc {tqc})"),
+        );
     }
 }
