@@ -1691,13 +1691,17 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
 }
 
 /// Every committed table (`results/<sweep>/table.md`) is what `rdpg table` makes of the
-/// committed result files today: the command named in its last line gives it byte for byte.
+/// committed result files today: the command named in its last line gives it byte for byte;
+/// and where RESULTS.md marks a copy (`<!-- table: results/<sweep>/table.md -->`), the copy's
+/// rows are the table's.
 #[test]
 fn committed_tables_regenerate_from_their_result_files() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut checked = 0;
+    let results_md = std::fs::read_to_string(root.join("RESULTS.md")).unwrap();
+    let (mut checked, mut marked) = (0, 0);
     for entry in std::fs::read_dir(root.join("results")).unwrap() {
-        let table = entry.unwrap().path().join("table.md");
+        let dir = entry.unwrap().path();
+        let table = dir.join("table.md");
         let Ok(text) = std::fs::read_to_string(&table) else {
             continue;
         };
@@ -1714,9 +1718,25 @@ fn committed_tables_regenerate_from_their_result_files() {
             "{}",
             table.display()
         );
+        let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+        let marker = format!("<!-- table: results/{name}/table.md -->\n");
+        if let Some(at) = results_md.find(&marker) {
+            let rows: Vec<&str> = text.lines().filter(|l| l.starts_with('|')).collect();
+            let below: Vec<&str> = results_md[at + marker.len()..]
+                .lines()
+                .take_while(|l| l.starts_with('|'))
+                .collect();
+            assert_eq!(below, rows, "RESULTS.md's copy of results/{name}/table.md");
+            marked += 1;
+        }
         checked += 1;
     }
     assert!(checked >= 1, "no committed table");
+    assert_eq!(
+        marked,
+        results_md.matches("<!-- table: results/").count(),
+        "RESULTS.md marks a table that is not committed"
+    );
 }
 
 /// The README's zoo table is what `rdpg zoo --table zoo` makes of the committed entries'
