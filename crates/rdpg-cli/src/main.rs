@@ -6,9 +6,10 @@
 //! sequence and print the trajectory as JSON lines), `render` (an episode to PNG frames and an
 //! animated GIF), `select` (choose among kept agents on more validation episodes), `zoo` (ship
 //! an agent), `sweep` (rows × seeds on Ray Tune), `table` (seed-aggregated tables and curves),
-//! `bench` (throughput).
+//! `claims` (the paper's claims checked on the sweeps' results), `bench` (throughput).
 
 mod bench;
+mod claims;
 mod experiment;
 mod render;
 mod report;
@@ -60,6 +61,9 @@ enum Command {
     Sweep(sweep::SweepArgs),
     /// Seed-aggregated tables (Markdown, CSV) and curves of a sweep's result files or runs.
     Table(table::TableArgs),
+    /// The paper's claims, each checked as orderings of a sweep's rows (a Markdown table with
+    /// the IQM differences, their 95 % CIs and a verdict).
+    Claims(claims::ClaimsArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -80,6 +84,7 @@ fn main() -> Result<()> {
         Command::Zoo(a) => zoo::run(&a),
         Command::Sweep(a) => sweep::run(&a),
         Command::Table(a) => table::run(&a),
+        Command::Claims(a) => claims::run(&a),
         Command::Bench(b) => bench::run(&b),
     }
 }

@@ -162,14 +162,67 @@ fn bootstrap_ci(
 }
 
 /// One row of the table.
-struct Row {
-    name: String,
-    trials: Vec<TrialResult>,
+pub(crate) struct Row {
+    /// The row's name.
+    pub(crate) name: String,
+    /// Its trials, by seed.
+    pub(crate) trials: Vec<TrialResult>,
+}
+
+/// The trials of `inputs` (result files, folders of them, sweep files or run directories)
+/// grouped into rows, each row's trials by seed, the rows in the sweep's order.
+pub(crate) fn load_rows(inputs: &[PathBuf]) -> Result<Vec<Row>> {
+    let mut rows: Vec<Row> = Vec::new();
+    for t in read_inputs(inputs)? {
+        match rows.iter_mut().find(|r| r.name == t.row) {
+            Some(r) => {
+                if r.trials.iter().any(|x| x.seed == t.seed) {
+                    bail!("row {:?} has seed {} twice", t.row, t.seed);
+                }
+                r.trials.push(t);
+            }
+            None => rows.push(Row {
+                name: t.row.clone(),
+                trials: vec![t],
+            }),
+        }
+    }
+    for r in &mut rows {
+        r.trials.sort_by_key(|t| t.seed);
+    }
+    rows.sort_by_key(|r| r.trials.iter().map(|t| t.row_index).min());
+    Ok(rows)
+}
+
+/// `IQM(a) - IQM(b)` of the pooled test episodes of runs `a` and `b`, with its 95 % percentile
+/// bootstrap interval: each draw resamples the runs of `a`, then of `b` (seeds are the unit).
+pub(crate) fn iqm_difference(
+    a: &[&[f64]],
+    b: &[&[f64]],
+    resamples: usize,
+    rng: &mut NpRng,
+) -> (f64, f64, f64) {
+    let pooled = |runs: &[&[f64]]| {
+        runs.iter()
+            .flat_map(|x| x.iter().copied())
+            .collect::<Vec<_>>()
+    };
+    let d = iqm(&pooled(a)) - iqm(&pooled(b));
+    let mut draws: Vec<f64> = (0..resamples)
+        .map(|_| {
+            let (x, _) = bootstrap_ci(a, 1, rng, &iqm);
+            let (y, _) = bootstrap_ci(b, 1, rng, &iqm);
+            x - y
+        })
+        .collect();
+    draws.sort_by(f64::total_cmp);
+    let at = |q: f64| draws[(q * (draws.len() - 1) as f64).round() as usize];
+    (d, at(0.025), at(0.975))
 }
 
 impl Row {
     /// Each seed's stock-test returns (the first 100 test episodes).
-    fn tests(&self) -> Vec<&[f64]> {
+    pub(crate) fn tests(&self) -> Vec<&[f64]> {
         self.trials
             .iter()
             .filter_map(|t| t.test())
@@ -199,26 +252,7 @@ pub fn run(a: &TableArgs) -> Result<()> {
     if a.resamples < 100 {
         bail!("--resamples must be at least 100");
     }
-    let trials = read_inputs(&a.inputs)?;
-    let mut rows: Vec<Row> = Vec::new();
-    for t in trials {
-        match rows.iter_mut().find(|r| r.name == t.row) {
-            Some(r) => {
-                if r.trials.iter().any(|x| x.seed == t.seed) {
-                    bail!("row {:?} has seed {} twice", t.row, t.seed);
-                }
-                r.trials.push(t);
-            }
-            None => rows.push(Row {
-                name: t.row.clone(),
-                trials: vec![t],
-            }),
-        }
-    }
-    for r in &mut rows {
-        r.trials.sort_by_key(|t| t.seed);
-    }
-    rows.sort_by_key(|r| r.trials.iter().map(|t| t.row_index).min());
+    let rows = load_rows(&a.inputs)?;
     let mut rng = NpRng::from_seed(0);
     let versus = match &a.versus {
         Some(name) => Some(
@@ -305,19 +339,7 @@ pub fn run(a: &TableArgs) -> Result<()> {
         };
         let diff = versus.as_ref().filter(|_| !pooled.is_empty()).map(|v| {
             let vs: Vec<&[f64]> = v.iter().map(Vec::as_slice).collect();
-            let pooled_v: Vec<f64> = v.iter().flatten().copied().collect();
-            let d = iq - iqm(&pooled_v);
-            let draws: Vec<f64> = (0..a.resamples)
-                .map(|_| {
-                    let (x, _) = bootstrap_ci(&tests, 1, &mut rng, &iqm);
-                    let (y, _) = bootstrap_ci(&vs, 1, &mut rng, &iqm);
-                    x - y
-                })
-                .collect();
-            let mut sorted = draws;
-            sorted.sort_by(f64::total_cmp);
-            let at = |q: f64| sorted[(q * (sorted.len() - 1) as f64).round() as usize];
-            (d, at(0.025), at(0.975))
+            iqm_difference(&tests, &vs, a.resamples, &mut rng)
         });
         let per_seed: Vec<String> = means.iter().map(|x| format!("{x:.1}")).collect();
         let _ = write!(

@@ -1739,6 +1739,45 @@ fn committed_tables_regenerate_from_their_result_files() {
     );
 }
 
+/// `rdpg claims`: a claim's verdict follows the CI of its IQM difference (the committed Table I
+/// rows: injection above RDPG holds, the reverse ordering does not hold); a row the sweep does
+/// not have and an unknown key are refused by name.
+#[test]
+fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = tmp("claims");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("claims.toml");
+    let claim = |better: &str, worse: &str| {
+        format!(
+            "[[claim]]\nclaim = \"c\"\npaper = \"p\"\nsweep = \"sweeps/table1-cpu.toml\"\n\
+             better = [\"{better}\"]\nworse = \"{worse}\"\n"
+        )
+    };
+    let run = |body: &str| {
+        std::fs::write(&file, body).unwrap();
+        let mut c = rdpg();
+        c.current_dir(&root).arg("claims").arg(&file);
+        c
+    };
+    let body = claim("rdpg-injection", "rdpg") + &claim("rdpg", "rdpg-injection");
+    let out = String::from_utf8(ok(&mut run(&body)).stdout).unwrap();
+    let verdicts: Vec<&str> = out
+        .lines()
+        .filter(|l| l.starts_with("| c |"))
+        .map(|l| l.split(" | ").nth(3).unwrap())
+        .collect();
+    assert_eq!(verdicts, ["**holds**", "**does not hold**"], "{out}");
+    fails(
+        &mut run(&claim("rdpg", "ddpg-typo")),
+        &["no row \"ddpg-typo\""],
+    );
+    fails(
+        &mut run(&(claim("rdpg", "ddpg") + "seed = 3\n")),
+        &["unknown field `seed`"],
+    );
+}
+
 /// The README's zoo table is what `rdpg zoo --table zoo` makes of the committed entries'
 /// summaries (no number in it is typed by hand).
 #[test]

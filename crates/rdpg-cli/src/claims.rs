@@ -1,0 +1,225 @@
+//! `rdpg claims FILE`: the paper's claims, each checked as orderings of a sweep's rows.
+//!
+//! A claims file (TOML) lists claims; each names a sweep file and one or more pairs of its
+//! rows, `better` above `worse`. A pair is measured by the difference of the interquartile
+//! means of the two rows' stock-reward tests (the first 100 test episodes of every seed),
+//! with a 95 % percentile bootstrap interval that resamples seeds ([`crate::table`], the
+//! same numbers as `rdpg table --versus`). Its verdict, once both rows have every seed the
+//! sweep declares: **holds** where the interval lies above 0, **does not hold** where it lies
+//! below, **unresolved** otherwise; before that the numbers so far are shown as **pending**.
+//! A claim holds when every one of its pairs holds.
+//!
+//! ```toml
+//! [[claim]]
+//! claim = "Experience injection improves RDPG"
+//! paper = "Table I: R_100MA 238.5 vs 227.5, success 32.5 vs 23.5 %"
+//! sweep = "sweeps/table1-cpu.toml"
+//! better = ["rdpg-injection"]
+//! worse = "rdpg"
+//! ```
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use rdpg_core::rng::NpRng;
+use serde::Deserialize;
+
+use crate::sweep::Sweep;
+use crate::table::{iqm_difference, load_rows, Row};
+
+/// Arguments of `rdpg claims`.
+#[derive(Debug, Args)]
+pub struct ClaimsArgs {
+    /// The claims file (TOML).
+    file: PathBuf,
+    /// Also write the Markdown here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+/// Bootstrap resamples per pair (as `rdpg table`'s default).
+const RESAMPLES: usize = 10_000;
+
+/// A claims file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ClaimsFile {
+    #[serde(rename = "claim")]
+    claims: Vec<Claim>,
+}
+
+/// One claim: `better[i]` above `worse` for every `i`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Claim {
+    /// The claim, in words.
+    claim: String,
+    /// The paper's evidence for it.
+    paper: String,
+    /// The sweep file whose rows measure it.
+    sweep: PathBuf,
+    /// Rows claimed above `worse`.
+    better: Vec<String>,
+    /// The row claimed below each of `better`.
+    worse: String,
+}
+
+/// Where one pair stands.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Verdict {
+    NotRun,
+    Pending,
+    Holds,
+    Reversed,
+    Unresolved,
+}
+
+/// One pair's numbers (none before both rows have a seed) and verdict.
+struct Pair {
+    text: Option<String>,
+    verdict: Verdict,
+}
+
+/// The test returns of each seed of `row` that has them.
+fn tests_of<'a>(rows: &'a [Row], row: &str) -> Vec<&'a [f64]> {
+    rows.iter()
+        .find(|r| r.name == row)
+        .map_or_else(Vec::new, Row::tests)
+}
+
+fn measure(rows: &[Row], better: &str, worse: &str, declared: usize) -> Pair {
+    let (a, b) = (tests_of(rows, better), tests_of(rows, worse));
+    if a.is_empty() || b.is_empty() {
+        return Pair {
+            text: None,
+            verdict: Verdict::NotRun,
+        };
+    }
+    let (d, lo, hi) = iqm_difference(&a, &b, RESAMPLES, &mut NpRng::from_seed(0));
+    let verdict = if a.len() < declared || b.len() < declared {
+        Verdict::Pending
+    } else if lo > 0.0 {
+        Verdict::Holds
+    } else if hi < 0.0 {
+        Verdict::Reversed
+    } else {
+        Verdict::Unresolved
+    };
+    Pair {
+        text: Some(format!("{better} − {worse}: {d:+.1} [{lo:+.1}, {hi:+.1}]")),
+        verdict,
+    }
+}
+
+/// The claim's rows that have not run every declared seed: `"ddpg 0 of 3 seeds"`.
+fn waiting(rows: &[Row], claim: &Claim, declared: usize) -> Vec<String> {
+    claim
+        .better
+        .iter()
+        .chain([&claim.worse])
+        .filter_map(|n| {
+            let done = tests_of(rows, n).len();
+            (done < declared).then(|| format!("{n} {done} of {declared} seeds"))
+        })
+        .collect()
+}
+
+/// The measured cell: each pair's numbers, then the rows still waiting for seeds.
+fn measured(pairs: &[Pair], waiting: &[String]) -> String {
+    let mut parts: Vec<String> = pairs.iter().filter_map(|p| p.text.clone()).collect();
+    if !waiting.is_empty() {
+        parts.push(format!("waiting for {}", waiting.join(", ")));
+    }
+    parts.join("; ")
+}
+
+/// The claim's verdict from its pairs'.
+fn overall(pairs: &[Pair], declared: usize) -> String {
+    let any = |v: Verdict| pairs.iter().any(|p| p.verdict == v);
+    if any(Verdict::NotRun) {
+        "not measured yet".into()
+    } else if any(Verdict::Pending) {
+        "pending (seeds still running)".into()
+    } else if pairs.iter().all(|p| p.verdict == Verdict::Holds) {
+        "**holds**".into()
+    } else if any(Verdict::Reversed) {
+        "**does not hold**".into()
+    } else {
+        format!("unresolved at {declared} seeds")
+    }
+}
+
+/// `rdpg claims`.
+pub fn run(a: &ClaimsArgs) -> Result<()> {
+    let text = std::fs::read_to_string(&a.file)
+        .with_context(|| format!("reading {}", a.file.display()))?;
+    let file: ClaimsFile = toml::from_str(&text)
+        .with_context(|| format!("invalid claims file {}", a.file.display()))?;
+    if file.claims.is_empty() {
+        bail!("{}: no [[claim]]", a.file.display());
+    }
+    let mut md = String::from(
+        "| claim | the paper's evidence | measured: IQM difference of the stock tests [95 % CI] | verdict | where |\n|---|---|---|---|---|\n",
+    );
+    for c in &file.claims {
+        if c.better.is_empty() {
+            bail!("claim {:?}: `better` names no row", c.claim);
+        }
+        let sweep = Sweep::load(&c.sweep).with_context(|| format!("claim {:?}", c.claim))?;
+        for row in c.better.iter().chain([&c.worse]) {
+            if !sweep.trials.iter().any(|t| &t.row == row) {
+                bail!(
+                    "claim {:?}: sweep {} has no row {row:?}",
+                    c.claim,
+                    c.sweep.display()
+                );
+            }
+        }
+        let rows = if has_results(&sweep.results) {
+            load_rows(std::slice::from_ref(&sweep.results))?
+        } else {
+            Vec::new()
+        };
+        let declared = sweep.file.seeds.len();
+        let pairs: Vec<Pair> = c
+            .better
+            .iter()
+            .map(|b| measure(&rows, b, &c.worse, declared))
+            .collect();
+        let table = sweep.results.join("table.md");
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | [{}]({}) |",
+            c.claim,
+            c.paper,
+            measured(&pairs, &waiting(&rows, c, declared)),
+            overall(&pairs, declared),
+            sweep.file.name,
+            table.display(),
+        );
+    }
+    md += "\nEach claim as orderings of a sweep's rows (`better − worse`): the difference of the \
+           interquartile means of their stock-reward tests (each seed's first 100 test \
+           episodes, pooled), its 95 % CI a percentile bootstrap over seeds. Holds: every \
+           interval above 0; does not hold: one below 0; unresolved: otherwise, once every \
+           declared seed has run; pending: the numbers so far.\n";
+    let _ = writeln!(md, "\nMade by `rdpg claims {}`.", a.file.display());
+    print!("{md}");
+    if let Some(out) = &a.out {
+        std::fs::write(out, &md).with_context(|| format!("writing {}", out.display()))?;
+    }
+    Ok(())
+}
+
+/// Whether `dir` holds a trial's result file yet.
+fn has_results(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|entries| {
+        entries.flatten().any(|e| {
+            let p = e.path();
+            p.extension().is_some_and(|x| x == "json")
+                && p.file_name().is_some_and(|n| n != "ledger.json")
+        })
+    })
+}
