@@ -1715,7 +1715,7 @@ fn committed_tables_regenerate_from_their_result_files() {
         assert_eq!(
             String::from_utf8_lossy(&out.stdout),
             text,
-            "{}",
+            "{} is stale: scripts/regen_tables.sh",
             table.display()
         );
         let name = dir.file_name().unwrap().to_string_lossy().into_owned();
@@ -1726,7 +1726,10 @@ fn committed_tables_regenerate_from_their_result_files() {
                 .lines()
                 .take_while(|l| l.starts_with('|'))
                 .collect();
-            assert_eq!(below, rows, "RESULTS.md's copy of results/{name}/table.md");
+            assert_eq!(
+                below, rows,
+                "RESULTS.md's copy of results/{name}/table.md: scripts/regen_tables.sh"
+            );
             marked += 1;
         }
         checked += 1;
