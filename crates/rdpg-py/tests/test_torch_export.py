@@ -66,6 +66,12 @@ SYNTHETIC = {
         {"recurrent": False, "scan_len": 0, "opt_len": 1, "update_len": 1, "tau": 0.005,
          "sac": {}},
     ),
+    "lidar-tqc-ff": (
+        "sac",
+        {},
+        {"recurrent": False, "scan_len": 0, "opt_len": 1, "update_len": 1, "tau": 0.005,
+         "sac": {"tqc": {"quantiles": 5, "drop_per_critic": 1}}},
+    ),
     "ppo": ("ppo", {"hide_obs": [2, 3], "prev_action_obs": True}, {"hidden": [32, 16]}),
 }
 
@@ -118,12 +124,14 @@ def _linear(name: str, in_dim: int, out_dim: int) -> dict[str, tuple[int, ...]]:
 def _rdpg_shapes(cfg: dict, obs_dim: int, act_dim: int) -> dict[str, tuple[int, ...]]:
     """The variables of an RDPG/DDPG/SAC agent with a lidar trunk (`nets.rs`), critic included
     (a SAC actor's output layer gives mean and log std; SAC has no target actor and a
-    `log_alpha`)."""
+    `log_alpha`; a TQC critic outputs its atoms)."""
     shapes: dict[str, tuple[int, ...]] = {}
     ch, af = cfg["lidar_channels"], cfg["critic_action_fc"]
     sac = "sac" in cfg
     actor_out = 2 * act_dim if sac else act_dim
-    nets = (("actor", cfg["actor_hidden"], actor_out), ("critic", cfg["critic_hidden"], 1))
+    # A TQC critic's output layer gives its atoms.
+    atoms = ((cfg.get("sac") or {}).get("tqc") or {}).get("quantiles", 1)
+    nets = (("actor", cfg["actor_hidden"], actor_out), ("critic", cfg["critic_hidden"], atoms))
     for net, hidden, out in nets:
         shapes[f"{net}.trunk.lidar_conv.weight"] = (ch, 1, 3)
         shapes[f"{net}.trunk.lidar_conv.bias"] = (ch,)
