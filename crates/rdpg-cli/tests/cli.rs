@@ -1450,7 +1450,7 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         dir.join("s.toml"),
         format!(
             concat!(
-                "name = \"s\"\nbase = {:?}\nseeds = [0, 1]\nsteps = 2000\n",
+                "name = \"s\"\nbase = {:?}\nseeds = [0, 1]\nsteps = 2000\nkeep_chosen_agents = true\n",
                 "set = [\"train.eval_every=500\", \"train.eval_episodes=20\", ",
                 "\"train.test_episodes=200\", \"run.checkpoint_every=250\"]\n",
                 "[[row]]\nname = \"rdpg\"\n",
@@ -1659,6 +1659,17 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
     assert_eq!(
         std::fs::read(dir.join("results/s/rdpg-s1.json")).unwrap(),
         kept
+    );
+    // Its kept agent (`keep_chosen_agents`) is the one its test scored: evaluated again from the
+    // kept run directory, it gives the same test returns.
+    let kept_run = dir.join("results/s/runs/rdpg-s1");
+    assert!(!kept_run.join("checkpoints/latest").exists());
+    let again: Value =
+        serde_json::from_slice(&ok(rdpg().arg("eval").arg("--run").arg(&kept_run)).stdout).unwrap();
+    let result = json_file(&dir.join("results/s/rdpg-s1.json"));
+    assert_eq!(
+        again["returns"], result["summary"]["test_eval"]["returns"],
+        "the kept agent is not the tested one"
     );
     collect();
     let ledger = json_file(&dir.join("results/s/ledger.json"));

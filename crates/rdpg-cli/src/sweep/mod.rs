@@ -21,6 +21,7 @@
 //! set = ["train.test_episodes=200"]        # overrides for every row (before the row's)
 //! results = "results/table1-cpu"           # default: results/<name>
 //! order = "seeds"                          # default "rows": every row's seed 0, then seed 1, ...
+//! keep_chosen_agents = true                # default false: also keep each chosen agent
 //! [grid]                                   # optional: every row × every combination
 //! "agent.opt_len" = [4, 8]
 //! [[row]]
@@ -104,6 +105,12 @@ pub struct SweepFile {
     /// The order trials start in.
     #[serde(default)]
     pub order: TrialOrder,
+    /// Also keep each finished trial's agent chosen on validation as a small run directory
+    /// `<results>/runs/<trial>/` (its experiment, summary, metrics, versions and that agent: no
+    /// replay, no optimiser state; about 2 MB for a walker), which `rdpg zoo`, `rdpg eval` and
+    /// `rdpg render` read: once committed, the agent outlives the machine that trained it.
+    #[serde(default)]
+    pub keep_chosen_agents: bool,
     /// The rows.
     #[serde(default, rename = "row")]
     pub rows: Vec<RowSpec>,

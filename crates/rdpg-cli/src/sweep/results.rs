@@ -2,10 +2,12 @@
 //! the ledger of all its trials ([`Ledger`]).
 
 use super::{PaperRow, Sweep};
-use crate::rundir::{read_json, write_json, Metric, RunDir, Summary, TestSummary};
-use anyhow::{Context, Result};
+use crate::rundir::{
+    copy_file, read_json, write_json, Metric, RunDir, Summary, TestSummary, Which,
+};
+use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// A finished trial's small result file (`results/<sweep>/<row>-s<seed>.json`): what
 /// `rdpg table` aggregates, with no run directory needed.
@@ -89,7 +91,8 @@ pub fn run_record(run: &RunDir) -> Result<RunRecord> {
     })
 }
 
-/// Writes the result file of every finished trial; returns one line per file written.
+/// Writes the result file of every finished trial (and, with `keep_chosen_agents`, the kept run
+/// directory of each that has none yet: [`keep_run`]); returns one line per file written.
 pub(super) fn collect(sweep: &Sweep) -> Result<Vec<String>> {
     let mut out = Vec::new();
     for t in &sweep.trials {
@@ -133,8 +136,51 @@ pub(super) fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         std::fs::rename(&partial, &path)
             .with_context(|| format!("renaming {} to {}", partial.display(), path.display()))?;
         out.push(path.display().to_string());
+        let kept = sweep.results.join("runs").join(&t.id);
+        if sweep.file.keep_chosen_agents && !kept.exists() {
+            keep_run(&run, &kept)?;
+            out.push(kept.display().to_string());
+        }
     }
     Ok(out)
+}
+
+/// Copies what `rdpg zoo`, `rdpg eval` and `rdpg render` read of a finished run to `to`: its
+/// experiment, summary, metrics (with `evals.csv`), versions, teachers, and the agent chosen on
+/// validation with its evaluation (`checkpoints/best/`), without the replay and optimiser state
+/// of `checkpoints/latest/`. Whole or not at all: written beside and renamed into place.
+fn keep_run(run: &RunDir, to: &Path) -> Result<()> {
+    let mut name = to.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    let partial = to.with_file_name(name);
+    if partial.exists() {
+        std::fs::remove_dir_all(&partial)
+            .with_context(|| format!("removing {}", partial.display()))?;
+    }
+    std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
+    let kept = RunDir::new(&partial);
+    let Some(eval) = run.snapshot_agent(Which::Best, &kept.agent(Which::Best))? else {
+        bail!(
+            "{}: no agent chosen on validation (no eval.json) to keep",
+            run.checkpoint(Which::Best).display()
+        );
+    };
+    write_json(&kept.checkpoint(Which::Best).join("eval.json"), &eval)?;
+    let mut files = vec![
+        (run.config(), kept.config()),
+        (run.summary(), kept.summary()),
+        (run.metrics(), kept.metrics()),
+        (run.versions(), kept.versions()),
+        (run.root().join("evals.csv"), partial.join("evals.csv")),
+    ];
+    if run.teachers().exists() {
+        files.push((run.teachers(), kept.teachers()));
+    }
+    for (from, into) in files {
+        copy_file(&from, &into)?;
+    }
+    std::fs::rename(&partial, to)
+        .with_context(|| format!("renaming {} to {}", partial.display(), to.display()))
 }
 
 /// One trial's line in the ledger.
