@@ -5,8 +5,8 @@
 //! mean ± sample std over seeds, the interquartile mean (IQM) of the test episodes of all seeds
 //! with a 95 % bootstrap confidence interval that resamples seeds (Agarwal et al. 2021:
 //! runs are the unit), the paper's metrics (best R_100MA on the training reward; success over
-//! the 200 test episodes when the test ran 200) and, where the sweep says which row is which,
-//! the paper's own Table I values. With `--versus ROW`, the IQM difference of every row to that
+//! the first 200 test episodes, or as many as every test ran) and, where the sweep says which
+//! row is which, the paper's own Table I values. With `--versus ROW`, the IQM difference of every row to that
 //! row with its 95 % CI: an ordering holds where the CI excludes 0.
 
 use std::fmt::Write as _;
@@ -277,7 +277,19 @@ pub fn run(a: &TableArgs) -> Result<()> {
     if !first.sweep.is_empty() {
         let _ = writeln!(md, "Sweep `{}`. {}\n", first.sweep, first.description);
     }
-    md += "| row | paper's row | seeds | agent steps (frames) | test per seed (stock, 100 ep.) | mean ± std over seeds | IQM [95 % CI] | success % (200 test ep.) | R_100MA (training reward) | paper R_100MA | paper success % |";
+    // Success over the first `n_success` test episodes of every seed: the paper's 200 where
+    // every test ran that many, else as many as every test ran.
+    let n_success = rows
+        .iter()
+        .flat_map(|r| &r.trials)
+        .filter_map(|t| t.test().map(|x| x.successes.len()))
+        .filter(|&n| n > 0)
+        .min()
+        .map_or(200, |n| n.min(200));
+    let _ = write!(
+        md,
+        "| row | paper's row | seeds | agent steps (frames) | test per seed (stock, 100 ep.) | mean ± std over seeds | IQM [95 % CI] | success % ({n_success} test ep.) | R_100MA (training reward) | paper R_100MA | paper success % |"
+    );
     if a.versus.is_some() {
         md += " IQM − versus [95 % CI] |";
     }
@@ -287,7 +299,7 @@ pub fn run(a: &TableArgs) -> Result<()> {
     }
     md += "\n";
     let mut csv = String::from(
-        "row,paper_row,seeds,steps,frames,test_means,mean,std,iqm,iqm_lo,iqm_hi,success_200,r100ma_mean,r100ma_std,paper_r100ma,paper_success,versus_diff,versus_lo,versus_hi\n",
+        "row,paper_row,seeds,steps,frames,test_means,mean,std,iqm,iqm_lo,iqm_hi,success,success_episodes,r100ma_mean,r100ma_std,paper_r100ma,paper_success,versus_diff,versus_lo,versus_hi\n",
     );
     for r in &rows {
         let tests = r.tests();
@@ -307,14 +319,17 @@ pub fn run(a: &TableArgs) -> Result<()> {
                 bootstrap_ci(&tests, a.resamples, &mut rng, &iqm),
             )
         };
-        // Success over 200 test episodes, where every seed's test ran at least 200.
-        let success200 = r
+        // Success over the first `n_success` test episodes of each seed.
+        let success = r
             .trials
             .iter()
             .map(|t| {
                 t.test()
-                    .filter(|x| x.successes.len() >= 200)
-                    .map(|x| x.successes[..200].iter().filter(|&&b| b).count() as f64 / 2.0)
+                    .filter(|x| x.successes.len() >= n_success)
+                    .map(|x| {
+                        let n = x.successes[..n_success].iter().filter(|&&b| b).count();
+                        100.0 * n as f64 / n_success as f64
+                    })
             })
             .collect::<Option<Vec<f64>>>()
             .map(|v| mean_std(&v).0);
@@ -360,18 +375,20 @@ pub fn run(a: &TableArgs) -> Result<()> {
             } else {
                 per_seed.join(" / ")
             },
-            if means.is_empty() {
-                "–".into()
-            } else {
-                format!("{m:.1} ± {s:.1}")
+            match means.len() {
+                0 => "–".into(),
+                1 => format!("{m:.1} (one seed)"),
+                _ => format!("{m:.1} ± {s:.1}"),
             },
-            if pooled.is_empty() {
-                "–".into()
-            } else {
-                format!("{iq:.1} [{lo:.1}, {hi:.1}]")
+            match tests.len() {
+                0 => "–".into(),
+                // A bootstrap over one seed has no spread to resample.
+                1 => format!("{iq:.1} (one seed: no CI)"),
+                _ => format!("{iq:.1} [{lo:.1}, {hi:.1}]"),
             },
-            fmt_opt(success200),
+            fmt_opt(success),
             match (r100m, r100s) {
+                (Some(m), Some(_)) if r100.len() == 1 => format!("{m:.1}"),
                 (Some(m), Some(s)) => format!("{m:.1} ± {s:.1}"),
                 _ => "n/a (< 100 episodes)".into(),
             },
@@ -384,8 +401,13 @@ pub fn run(a: &TableArgs) -> Result<()> {
             let cell = if a.versus.as_ref() == Some(&r.name) {
                 "(reference)".into()
             } else {
+                let one_seed = tests.len() < 2 || versus.as_ref().is_some_and(|v| v.len() < 2);
                 diff.map_or("–".into(), |(d, l, h)| {
-                    format!("{d:+.1} [{l:+.1}, {h:+.1}]")
+                    if one_seed {
+                        format!("{d:+.1} (one seed: no CI)")
+                    } else {
+                        format!("{d:+.1} [{l:+.1}, {h:+.1}]")
+                    }
                 })
             };
             let _ = write!(md, " {cell} |");
@@ -394,7 +416,7 @@ pub fn run(a: &TableArgs) -> Result<()> {
         let o = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x}"));
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{},{m},{s},{iq},{lo},{hi},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{m},{s},{iq},{lo},{hi},{},{n_success},{},{},{},{},{},{},{}",
             r.name,
             paper.as_ref().map_or("", |p| p.label.as_str()),
             seeds.join(";"),
@@ -405,7 +427,7 @@ pub fn run(a: &TableArgs) -> Result<()> {
                 .map(|x| x.to_string())
                 .collect::<Vec<_>>()
                 .join(";"),
-            o(success200),
+            o(success),
             o(r100m),
             o(r100s),
             o(paper.as_ref().and_then(|p| p.r100ma)),
@@ -418,7 +440,8 @@ pub fn run(a: &TableArgs) -> Result<()> {
     md += "\nTest: each seed's agent chosen on validation episodes, on its first 100 test \
            episodes (stock reward); mean ± sample std over seeds of the per-seed means. IQM: \
            interquartile mean of all seeds' test episodes; its 95 % CI resamples seeds (a \
-           percentile bootstrap). Success: share of the 200 test episodes that reached the end \
+           percentile bootstrap). Success: share of the first test episodes (as many as the \
+           header says: the paper's 200 where every test ran them) that reached the end \
            without a fall, mean over seeds. R_100MA: best 100-episode moving average of \
            training returns (with exploration noise) on the training reward, the paper's \
            metric.\n";

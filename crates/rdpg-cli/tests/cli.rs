@@ -1614,7 +1614,8 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
             (num("std") - (means[0] - means[1]).abs() / 2f64.sqrt()).abs() < 1e-9,
             "{row}: {line}"
         );
-        assert!((num("success_200") - (successes[0] + successes[1]) / 2.0).abs() < 1e-9);
+        assert!((num("success") - (successes[0] + successes[1]) / 2.0).abs() < 1e-9);
+        assert_eq!(num("success_episodes"), 200.0);
         assert!(
             num("iqm_lo") <= num("iqm") && num("iqm") <= num("iqm_hi"),
             "{line}"
