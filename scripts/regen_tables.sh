@@ -18,9 +18,13 @@ import re
 path = "RESULTS.md"
 text = open(path).read()
 def fill(m):
-    rows = [l for l in open(m.group(1)).read().splitlines() if l.startswith("|")]
+    # The K-th table of the file (its K-th block of `|` lines): `table.md` marks the first,
+    # `table.md, K` the K-th.
+    blocks = [[l for l in b.splitlines() if l.startswith("|")]
+              for b in open(m.group(1)).read().split("\n\n")]
+    rows = [b for b in blocks if b][int(m.group(2) or 1) - 1]
     return m.group(0).split("\n", 1)[0] + "\n" + "\n".join(rows) + "\n"
-new = re.sub(r"<!-- table: (results/[^ ]+/table\.md) -->\n(?:\|[^\n]*\n)*", fill, text)
+new = re.sub(r"<!-- table: (results/[^ ]+/table\.md)(?:, (\d+))? -->\n(?:\|[^\n]*\n)*", fill, text)
 if new != text:
     open(path, "w").write(new)
     print("updated RESULTS.md")

@@ -14,11 +14,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use rdpg_agents::common::ObstacleRecord;
 use rdpg_core::rng::NpRng;
 use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
 use rdpg_render::save_png;
 
-use crate::rundir::{read_json, RunDir};
+use crate::rundir::{read_json, RunDir, TestSummary};
 use crate::sweep::TrialResult;
 
 /// Arguments of `rdpg table`.
@@ -445,6 +446,10 @@ pub fn run(a: &TableArgs) -> Result<()> {
            without a fall, mean over seeds. R_100MA: best 100-episode moving average of \
            training returns (with exploration noise) on the training reward, the paper's \
            metric.\n";
+    if let Some(t) = obstacle_table(&rows) {
+        md += "\n";
+        md += &t;
+    }
     let mut command = String::from("rdpg table");
     for i in &a.inputs {
         command += &format!(" {}", i.display());
@@ -467,6 +472,99 @@ pub fn run(a: &TableArgs) -> Result<()> {
         plot_rows(&rows, out)?;
     }
     Ok(())
+}
+
+/// Where each row's test episodes ended, for walkers whose tests recorded it: the share that
+/// finished and that ran out of time, and per obstacle kind (stump, stairs, pit, as the terrain
+/// generator makes them) the obstacles passed and the episodes that fell or got stuck at one,
+/// summed over the seeds that recorded it (all test episodes of each). `None` when no test did.
+fn obstacle_table(rows: &[Row]) -> Option<String> {
+    let rank = |k: &str| match k {
+        "stump" => 0,
+        "stairs" => 1,
+        "pit" => 2,
+        "none" => 4,
+        _ => 3,
+    };
+    let mut kinds: Vec<&str> = rows
+        .iter()
+        .flat_map(|r| &r.trials)
+        .filter_map(|t| t.test())
+        .flat_map(|x| x.obstacles.keys().map(String::as_str))
+        .collect();
+    if kinds.is_empty() {
+        return None;
+    }
+    kinds.sort_by_key(|k| (rank(k), *k));
+    kinds.dedup();
+    let mut md = String::from(
+        "Where the test episodes ended (all test episodes of each seed that recorded it, \
+         summed; passed: obstacles passed; fell / stuck: episodes that ended by a fall at one, \
+         or at the time limit in front of one; `none`: away from any obstacle):\n\n\
+         | row | seeds | test episodes | finished | time limit |",
+    );
+    for k in &kinds {
+        let cells = if *k == "none" {
+            "fell / stuck"
+        } else {
+            "passed / fell / stuck"
+        };
+        let _ = write!(md, " {k}: {cells} |");
+    }
+    md += "\n|---|---|---|---|---|";
+    md += &"---|".repeat(kinds.len());
+    md += "\n";
+    for r in rows {
+        let tests: Vec<(u64, &TestSummary)> = r
+            .trials
+            .iter()
+            .filter_map(|t| t.test().map(|x| (t.seed, x)))
+            .filter(|(_, x)| !x.obstacles.is_empty())
+            .collect();
+        if tests.is_empty() {
+            let _ = writeln!(
+                md,
+                "| {} | – (not recorded) | | | |{}",
+                r.name,
+                " |".repeat(kinds.len())
+            );
+            continue;
+        }
+        let episodes: usize = tests.iter().map(|(_, x)| x.returns.len()).sum();
+        let finished: usize = tests
+            .iter()
+            .map(|(_, x)| x.successes.iter().filter(|&&b| b).count())
+            .sum();
+        let limit: f64 = tests
+            .iter()
+            .map(|(_, x)| x.time_limit_rate.unwrap_or(0.0) * x.returns.len() as f64)
+            .sum();
+        let seeds: Vec<String> = tests.iter().map(|(s, _)| s.to_string()).collect();
+        let _ = write!(
+            md,
+            "| {} | {} | {episodes} | {finished} | {:.0} |",
+            r.name,
+            seeds.join(", "),
+            limit
+        );
+        for k in &kinds {
+            let sum = |f: fn(&ObstacleRecord) -> u64| -> u64 {
+                tests
+                    .iter()
+                    .filter_map(|(_, x)| x.obstacles.get(*k))
+                    .map(f)
+                    .sum()
+            };
+            let (passed, fell, stuck) = (sum(|o| o.passed), sum(|o| o.fell), sum(|o| o.stuck));
+            if *k == "none" {
+                let _ = write!(md, " {fell} / {stuck} |");
+            } else {
+                let _ = write!(md, " {passed} / {fell} / {stuck} |");
+            }
+        }
+        md += "\n";
+    }
+    Some(md)
 }
 
 /// The validation curves of each row: the mean over seeds at the steps every seed evaluated,
@@ -551,5 +649,62 @@ mod tests {
         assert!(lo < iqm(&whole) && iqm(&whole) < hi, "{lo} {hi}");
         let (lo2, hi2) = bootstrap_ci(&[&a, &a], 2000, &mut rng, &iqm);
         assert_eq!((lo2, hi2), (iqm(&a), iqm(&a)));
+    }
+
+    /// The obstacle table sums each row's seeds that recorded where their test episodes
+    /// ended, lists the kinds in the terrain's order (`none` last), and says which row did not.
+    #[test]
+    fn obstacle_table_sums_the_seeds_that_recorded_it() {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let base: TrialResult =
+            read_json(&root.join("results/hardcore-1m/td3-paper-s0.json")).unwrap();
+        let trial = |row: &str, seed: u64, obstacles: &[(&str, [u64; 3])], limit: f64| {
+            let mut t = base.clone();
+            t.row = row.into();
+            t.seed = seed;
+            let test = t.summary.test_eval.as_mut().unwrap();
+            test.returns = vec![0.0; 10];
+            test.successes = (0..10).map(|k| k < 3).collect();
+            test.time_limit_rate = Some(limit);
+            test.obstacles = obstacles
+                .iter()
+                .map(|(k, [passed, fell, stuck])| {
+                    let o = ObstacleRecord {
+                        passed: *passed,
+                        fell: *fell,
+                        stuck: *stuck,
+                    };
+                    (k.to_string(), o)
+                })
+                .collect();
+            t
+        };
+        let rows = [
+            Row {
+                name: "a".into(),
+                trials: vec![
+                    trial("a", 0, &[("pit", [5, 1, 0]), ("none", [0, 2, 1])], 0.2),
+                    trial("a", 1, &[("stump", [7, 3, 0]), ("pit", [4, 0, 2])], 0.5),
+                ],
+            },
+            Row {
+                name: "b".into(),
+                trials: vec![trial("b", 0, &[], 0.0)],
+            },
+        ];
+        let md = obstacle_table(&rows).unwrap();
+        let lines: Vec<&str> = md.lines().filter(|l| l.starts_with('|')).collect();
+        assert_eq!(
+            lines[0],
+            "| row | seeds | test episodes | finished | time limit | stump: passed / fell / stuck \
+             | pit: passed / fell / stuck | none: fell / stuck |"
+        );
+        assert_eq!(
+            lines[2],
+            "| a | 0, 1 | 20 | 6 | 7 | 7 / 3 / 0 | 9 / 1 / 2 | 2 / 1 |"
+        );
+        assert_eq!(lines[3], "| b | – (not recorded) | | | | | | |");
+        // No test recorded any: no table.
+        assert!(obstacle_table(&rows[1..]).is_none());
     }
 }

@@ -416,6 +416,8 @@ fn test_best(run: &RunDir, exp: &Experiment, best: Option<&EvalRecord>) -> Resul
         success_rate: r.success_rate,
         returns: r.returns,
         successes: r.successes,
+        time_limit_rate: Some(r.time_limit_rate),
+        obstacles: r.obstacles,
     })
 }
 

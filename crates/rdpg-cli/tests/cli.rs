@@ -1731,18 +1731,33 @@ fn committed_tables_regenerate_from_their_result_files() {
             table.display()
         );
         let name = dir.file_name().unwrap().to_string_lossy().into_owned();
-        let marker = format!("<!-- table: results/{name}/table.md -->\n");
-        if let Some(at) = results_md.find(&marker) {
-            let rows: Vec<&str> = text.lines().filter(|l| l.starts_with('|')).collect();
-            let below: Vec<&str> = results_md[at + marker.len()..]
-                .lines()
-                .take_while(|l| l.starts_with('|'))
-                .collect();
-            assert_eq!(
-                below, rows,
-                "RESULTS.md's copy of results/{name}/table.md: scripts/regen_tables.sh"
-            );
-            marked += 1;
+        // The k-th table of the file (its k-th block of `|` lines): `table.md` marks the
+        // first, `table.md, K` the K-th.
+        let blocks: Vec<Vec<&str>> = text
+            .split("\n\n")
+            .map(|b| b.lines().filter(|l| l.starts_with('|')).collect::<Vec<_>>())
+            .filter(|b| !b.is_empty())
+            .collect();
+        for (k, rows) in blocks.iter().enumerate() {
+            let marker = if k == 0 {
+                format!("<!-- table: results/{name}/table.md -->\n")
+            } else {
+                format!("<!-- table: results/{name}/table.md, {} -->\n", k + 1)
+            };
+            if let Some(at) = results_md.find(&marker) {
+                let below: Vec<&str> = results_md[at + marker.len()..]
+                    .lines()
+                    .take_while(|l| l.starts_with('|'))
+                    .collect();
+                assert_eq!(
+                    &below,
+                    rows,
+                    "RESULTS.md's copy of table {} of results/{name}/table.md: \
+                     scripts/regen_tables.sh",
+                    k + 1
+                );
+                marked += 1;
+            }
         }
         checked += 1;
     }

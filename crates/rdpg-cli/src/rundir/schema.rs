@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::Result;
+use rdpg_agents::common::ObstacleRecord;
 use rdpg_agents::rdpg::inject::{TeacherFile, TeacherInfo};
 use rdpg_agents::{EvalRecord, UpdateStats};
 use serde::{Deserialize, Serialize};
@@ -308,6 +309,15 @@ pub struct TestSummary {
     /// Whether each episode reached the end of the course, in seed order.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub successes: Vec<bool>,
+    /// Share of episodes cut by the time limit (neither finished nor fell); absent in tests
+    /// recorded before it was.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_limit_rate: Option<f64>,
+    /// Walkers: how the test episodes fared at each kind of obstacle (and `none`: episodes
+    /// that ended away from any; as `rdpg eval` counts them); absent in tests recorded before
+    /// it was.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub obstacles: BTreeMap<String, ObstacleRecord>,
 }
 
 /// An evaluation in [`Summary`].

@@ -195,6 +195,8 @@ pub fn read_as_run(entry: &RunDir) -> Result<(Summary, Vec<Metric>)> {
             success_rate: zs.test.success_rate,
             returns: zs.test.returns,
             successes: Vec::new(),
+            time_limit_rate: zs.test.time_limit_rate,
+            obstacles: zs.test.obstacles,
         }),
         teachers: zs.teachers,
         machine: Some(zs.machine),
