@@ -1542,6 +1542,21 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
             assert_eq!(&events(t), b, "{t} ran after {stopped} was stopped");
         }
     }
+    // `--status` reads where it stands: the stopped trial, stopped (its record names a
+    // process that is gone), nothing running.
+    let status = || {
+        let out = ok(rdpg()
+            .current_dir(&dir)
+            .args(["sweep", "s.toml", "--status"]));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    let now = status();
+    assert!(now.contains(" finished, 0 running, "), "{now}");
+    let line = now
+        .lines()
+        .find(|l| l.starts_with(&format!("| {stopped} |")))
+        .unwrap_or_else(|| panic!("no line for {stopped}: {now}"));
+    assert!(line.contains("| stopped |"), "{line}");
     // A finished sweep's last line counts its trials and the finished ones.
     let finished_sweep = || -> Value {
         let out = ok(&mut sweep());
@@ -1553,6 +1568,22 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         (end["trials"].as_u64(), end["finished"].as_u64()),
         (Some(4), Some(4))
     );
+    let now = status();
+    assert!(
+        now.contains("4 trials, 4 finished, 0 running, 0 stopped, 0 not started")
+            && now.contains("Left: 0.0 core-hours"),
+        "{now}"
+    );
+    for t in all {
+        let line = now
+            .lines()
+            .find(|l| l.starts_with(&format!("| {t} |")))
+            .unwrap();
+        assert!(
+            line.contains("| finished | 2000 / 2000 (100 %) |"),
+            "{line}"
+        );
+    }
     // At least one trial continued from a checkpoint after the interrupt, none restarted.
     let mut resumed = 0;
     for t in ["rdpg-s0", "rdpg-s1", "ddpg-s0", "ddpg-s1"] {

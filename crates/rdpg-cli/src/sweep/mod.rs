@@ -9,7 +9,8 @@
 //! `python -m rdpg.sweep` (Ray Tune: `crates/rdpg-py/python/rdpg/sweep.py`), which starts,
 //! resumes or skips each trial. `--collect` writes each finished trial's small result file
 //! under the sweep's `results` folder (what `rdpg table` reads and what gets committed), and
-//! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`results::Ledger`]).
+//! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`results::Ledger`]);
+//! `--status` tells where a running or stopped sweep stands (`status.rs`).
 //!
 //! ```toml
 //! name = "table1-cpu"                      # default: the file's stem
@@ -31,6 +32,7 @@
 //! ```
 
 mod results;
+mod status;
 
 use results::{collect, write_ledger};
 pub use results::{run_record, RunRecord, TrialResult};
@@ -58,8 +60,13 @@ pub struct SweepArgs {
     /// Write the result file of every finished trial and the sweep's ledger (every trial's
     /// status, steps, binary commits and restarts) under the sweep's `results` folder, and start
     /// nothing.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "status")]
     collect: bool,
+    /// Print where the sweep stands (each trial's state, steps, validation, speed, the
+    /// running trials' time to their budget and the core-hours left, from the files its trials
+    /// write), and start nothing.
+    #[arg(long, conflicts_with = "plan")]
+    status: bool,
     /// CPUs the local Ray may use (default: all cores); at most `cpus / threads` trials run at
     /// once.
     #[arg(long)]
@@ -434,6 +441,10 @@ pub fn run(a: &SweepArgs) -> Result<()> {
     let sweep = Sweep::load(&a.file)?;
     if a.plan {
         return print_plan(&sweep);
+    }
+    if a.status {
+        print!("{}", status::report(&sweep)?);
+        return Ok(());
     }
     if a.collect {
         for line in collect(&sweep)? {
