@@ -38,14 +38,14 @@ use crate::rundir::{
 pub struct ZooArgs {
     /// Run directory written by `rdpg train`; its agent `--checkpoint` (chosen on the
     /// validation seeds) is shipped.
-    #[arg(long, required_unless_present_any = ["table", "retest"])]
+    #[arg(long, required_unless_present_any = ["table", "retest", "card"])]
     run: Option<PathBuf>,
     /// The agent to ship: `best` (the best periodic evaluation) or `selected` (chosen by
     /// `rdpg select` on more validation episodes).
     #[arg(long, default_value = "best")]
     checkpoint: Which,
     /// The zoo entry to create, e.g. `zoo/walker-td3`. Must not exist.
-    #[arg(long, required_unless_present_any = ["table", "retest"])]
+    #[arg(long, required_unless_present_any = ["table", "retest", "card"])]
     out: Option<PathBuf>,
     /// Test episodes (default: the run's `train.test_episodes`), from the run's test seeds.
     #[arg(long)]
@@ -59,13 +59,18 @@ pub struct ZooArgs {
     gif_steps: usize,
     /// Instead of shipping an agent: print the Markdown table of every entry of this zoo
     /// directory, read from the entries' `summary.json` (the README's zoo table).
-    #[arg(long, value_name = "ZOO_DIR", conflicts_with_all = ["run", "out", "episodes", "command", "retest"])]
+    #[arg(long, value_name = "ZOO_DIR", conflicts_with_all = ["run", "out", "episodes", "command", "retest", "card"])]
     table: Option<PathBuf>,
     /// Instead of shipping an agent: test this zoo entry again on `--episodes` test episodes
     /// (default: as many as its summary has), in order on one env from its test seeds, and
     /// rewrite its `summary.json` test and its model card (`README.md`).
-    #[arg(long, value_name = "ZOO_ENTRY", conflicts_with_all = ["run", "out", "command"])]
+    #[arg(long, value_name = "ZOO_ENTRY", conflicts_with_all = ["run", "out", "command", "card"])]
     retest: Option<PathBuf>,
+    /// Instead of shipping an agent: rewrite this zoo entry's model card (`README.md`) from
+    /// its `summary.json` and `config.toml`, testing nothing (after its folder was renamed:
+    /// the card's commands name the folder).
+    #[arg(long, value_name = "ZOO_ENTRY", conflicts_with_all = ["run", "out", "command", "episodes"])]
+    card: Option<PathBuf>,
 }
 
 /// `rdpg zoo`.
@@ -73,13 +78,14 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     if a.episodes == Some(0) {
         bail!("--episodes must be at least 1");
     }
-    let (a_run, a_out) = match (&a.table, &a.retest, &a.run, &a.out) {
+    let (a_run, a_out) = match (&a.table, &a.retest, &a.card, &a.run, &a.out) {
         (Some(dir), ..) => {
             print!("{}", zoo_table(dir)?);
             return Ok(());
         }
         (None, Some(entry), ..) => return retest(entry, a.episodes),
-        (None, None, Some(run), Some(out)) => (run, out),
+        (None, None, Some(entry), ..) => return rewrite_card(entry),
+        (None, None, None, Some(run), Some(out)) => (run, out),
         // clap requires both without --table.
         _ => bail!("--run and --out are required"),
     };
@@ -213,8 +219,11 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         teachers: summary.teachers.clone(),
     };
     write_json(&tmp.join("summary.json"), &zs)?;
-    std::fs::write(tmp.join("README.md"), model_card(&zs, &exp))
-        .with_context(|| format!("writing {}", tmp.join("README.md").display()))?;
+    std::fs::write(
+        tmp.join("README.md"),
+        model_card(&entry_name(a_out), &zs, &exp),
+    )
+    .with_context(|| format!("writing {}", tmp.join("README.md").display()))?;
     std::fs::rename(&tmp, a_out)
         .with_context(|| format!("renaming {} to {}", tmp.display(), a_out.display()))?;
     println!("{}", serde_json::to_string(&zs)?);
@@ -292,6 +301,40 @@ fn steps_k(n: u64) -> String {
     }
 }
 
+/// The folder name of a zoo entry (`zoo/walker-td3` → `walker-td3`), which its card's commands
+/// name.
+fn entry_name(entry: &Path) -> String {
+    entry
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Writes `text` to `entry/name` whole (aside, then renamed).
+fn write_whole(entry: &Path, name: &str, text: &str) -> Result<()> {
+    let (path, part) = (entry.join(name), entry.join(format!("{name}.partial")));
+    std::fs::write(&part, text).with_context(|| format!("writing {}", part.display()))?;
+    std::fs::rename(&part, &path).with_context(|| format!("renaming to {}", path.display()))
+}
+
+/// `rdpg zoo --card ENTRY`: the entry's model card made again from its summary and config.
+fn rewrite_card(entry: &Path) -> Result<()> {
+    let run = RunDir::new(entry);
+    if !run.is_zoo_entry() {
+        bail!(
+            "{}: not a zoo entry (`rdpg zoo --run` makes one)",
+            entry.display()
+        );
+    }
+    let zs: ZooSummary = read_json(&run.summary())?;
+    let exp = run.experiment()?;
+    write_whole(
+        entry,
+        "README.md",
+        &model_card(&entry_name(entry), &zs, &exp),
+    )
+}
+
 /// `rdpg zoo --retest ENTRY`: the entry's agent tested again on `episodes` test episodes (in
 /// order on one env, from its run's test seeds); its summary's test and its card rewritten,
 /// each whole (written aside, then renamed).
@@ -309,14 +352,16 @@ fn retest(entry: &Path, episodes: Option<usize>) -> Result<()> {
     let n = episodes.unwrap_or(zs.test.episodes);
     let test = evaluate_policy(policy.as_mut(), t, n, t.test_seed)?;
     zs.test = ZooTest::from_eval(&test, n, t.test_seed);
-    for (name, text) in [
-        ("summary.json", serde_json::to_string_pretty(&zs)? + "\n"),
-        ("README.md", model_card(&zs, &exp)),
-    ] {
-        let (path, part) = (entry.join(name), entry.join(format!("{name}.partial")));
-        std::fs::write(&part, text).with_context(|| format!("writing {}", part.display()))?;
-        std::fs::rename(&part, &path).with_context(|| format!("renaming to {}", path.display()))?;
-    }
+    write_whole(
+        entry,
+        "summary.json",
+        &(serde_json::to_string_pretty(&zs)? + "\n"),
+    )?;
+    write_whole(
+        entry,
+        "README.md",
+        &model_card(&entry_name(entry), &zs, &exp),
+    )?;
     println!(
         "{}",
         serde_json::json!({
@@ -333,15 +378,23 @@ fn retest(entry: &Path, episodes: Option<usize>) -> Result<()> {
 
 /// A zoo entry's model card (`README.md`), made from its summary and config: what it is, its
 /// rewards, budget, seed and how it was chosen, its test, how to load it, where it fails.
-pub fn model_card(zs: &ZooSummary, exp: &crate::experiment::Experiment) -> String {
+/// `entry` is the entry's folder name (`zoo/<entry>`), which its commands name; where it is
+/// not the experiment's name (`hardcore-td3-paper-2m` of experiment `hardcore-td3-paper`),
+/// the card says both.
+pub fn model_card(entry: &str, zs: &ZooSummary, exp: &crate::experiment::Experiment) -> String {
     let t = &zs.test;
     let n = t.episodes as f64;
     let walker = zs.env.starts_with("BipedalWalker");
     let mut md = format!(
-        "# {name}\n\n`{algo}` agent for {env}, trained on the **{train}** reward and tested on \
-         the **{eval}** reward{repeat}. Generated from `summary.json` by `rdpg zoo` (`rdpg zoo \
-         --retest zoo/{name}` tests the agent again and rewrites both).\n\n",
-        name = zs.name,
+        "# {name}\n\n`{algo}` agent{experiment} for {env}, trained on the **{train}** reward and \
+         tested on the **{eval}** reward{repeat}. Generated from `summary.json` by `rdpg zoo` \
+         (`rdpg zoo --retest zoo/{name}` tests the agent again and rewrites both).\n\n",
+        name = entry,
+        experiment = if entry == zs.name {
+            String::new()
+        } else {
+            format!(" (experiment `{}`)", zs.name)
+        },
         algo = zs.algo,
         env = zs.env,
         train = zs.training_reward,
@@ -394,7 +447,7 @@ pub fn model_card(zs: &ZooSummary, exp: &crate::experiment::Experiment) -> Strin
          rdpg render --run zoo/{0} --gif {0}.gif\n```\n\n```python\nimport rdpg\n\
          policy = rdpg.Policy.load(rdpg.zoo(\"{0}\"))\nenv = policy.make_env()   # its action repeat, \
          stock reward\n```\n",
-        zs.name, t.episodes
+        entry, t.episodes
     );
     if walker && (!t.obstacles.is_empty() || t.time_limit_rate.is_some()) {
         md.push_str("## Where it fails\n\n");
@@ -419,6 +472,32 @@ pub fn model_card(zs: &ZooSummary, exp: &crate::experiment::Experiment) -> Strin
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every committed zoo entry's card is the one its summary, config and folder name make
+    /// (`rdpg zoo --card` rewrites a stale one): its commands name the folder it is in.
+    #[test]
+    fn committed_cards_are_generated_from_their_entries() {
+        let zoo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../zoo");
+        let mut checked = 0;
+        for e in std::fs::read_dir(&zoo).unwrap() {
+            let entry = e.unwrap().path();
+            if !RunDir::new(&entry).is_zoo_entry() {
+                continue;
+            }
+            let zs: ZooSummary = read_json(&entry.join("summary.json")).unwrap();
+            let exp = RunDir::new(&entry).experiment().unwrap();
+            let want = model_card(&entry_name(&entry), &zs, &exp);
+            let have = std::fs::read_to_string(entry.join("README.md")).unwrap();
+            assert!(
+                have == want,
+                "{}: the card is stale: `rdpg zoo --card {}` rewrites it",
+                entry.display(),
+                entry.display()
+            );
+            checked += 1;
+        }
+        assert!(checked >= 8, "only {checked} zoo entries found");
+    }
 
     /// A walker's card gives the test with its standard error and where the agent fails, from
     /// the summary alone.
@@ -446,7 +525,7 @@ mod tests {
             success_rate: 0.5,
             ..t
         };
-        let card = model_card(&zs, &exp);
+        let card = model_card("hardcore-td3-paper", &zs, &exp);
         for want in [
             "**187.0 ± 167.0** (standard error 83.5) over 4 test episodes from seed 3000000",
             "success 50 %",
@@ -454,6 +533,18 @@ mod tests {
             "3 % of the test episodes reach the time limit",
             "| stump | 410 | 7 | 2 |",
             "rdpg eval --run zoo/hardcore-td3-paper --episodes 4",
+        ] {
+            assert!(card.contains(want), "{want}\n{card}");
+        }
+        assert!(!card.contains("(experiment `"), "{card}");
+        // An entry in a folder of another name: its commands name the folder, the card the
+        // experiment.
+        let card = model_card("hardcore-td3-paper-2m", &zs, &exp);
+        for want in [
+            "# hardcore-td3-paper-2m\n",
+            "`ddpg` agent (experiment `hardcore-td3-paper`) for BipedalWalkerHardcore-v3",
+            "rdpg eval --run zoo/hardcore-td3-paper-2m --episodes 4",
+            "rdpg.zoo(\"hardcore-td3-paper-2m\")",
         ] {
             assert!(card.contains(want), "{want}\n{card}");
         }

@@ -762,6 +762,24 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         rdpg().args(["zoo", "--retest"]).arg(&one),
         &["not a zoo entry"],
     );
+    // `--card` after a rename: the card's commands name the new folder; nothing else changes.
+    assert!(card.contains("rdpg eval --run zoo/zoo-entry "), "{card}");
+    let moved = tmp("zoo-entry-moved");
+    let _ = std::fs::remove_dir_all(&moved);
+    std::fs::rename(&zoo, &moved).unwrap();
+    let summary = std::fs::read(moved.join("summary.json")).unwrap();
+    ok(rdpg().args(["zoo", "--card"]).arg(&moved));
+    let card = std::fs::read_to_string(moved.join("README.md")).unwrap();
+    assert!(
+        card.starts_with("# zoo-entry-moved\n")
+            && card.contains("rdpg eval --run zoo/zoo-entry-moved --episodes 6"),
+        "{card}"
+    );
+    assert_eq!(std::fs::read(moved.join("summary.json")).unwrap(), summary);
+    fails(
+        rdpg().args(["zoo", "--card"]).arg(&one),
+        &["not a zoo entry"],
+    );
 }
 
 /// `run.keep_agents_every` keeps weights-only agents without changing the run; `rdpg select`
