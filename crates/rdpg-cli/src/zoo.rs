@@ -317,8 +317,8 @@ fn write_whole(entry: &Path, name: &str, text: &str) -> Result<()> {
     std::fs::rename(&part, &path).with_context(|| format!("renaming to {}", path.display()))
 }
 
-/// `rdpg zoo --card ENTRY`: the entry's model card made again from its summary and config.
-fn rewrite_card(entry: &Path) -> Result<()> {
+/// `entry` as a run directory, refused unless it is a zoo entry.
+fn zoo_entry(entry: &Path) -> Result<RunDir> {
     let run = RunDir::new(entry);
     if !run.is_zoo_entry() {
         bail!(
@@ -326,6 +326,12 @@ fn rewrite_card(entry: &Path) -> Result<()> {
             entry.display()
         );
     }
+    Ok(run)
+}
+
+/// `rdpg zoo --card ENTRY`: the entry's model card made again from its summary and config.
+fn rewrite_card(entry: &Path) -> Result<()> {
+    let run = zoo_entry(entry)?;
     let zs: ZooSummary = read_json(&run.summary())?;
     let exp = run.experiment()?;
     write_whole(
@@ -339,13 +345,7 @@ fn rewrite_card(entry: &Path) -> Result<()> {
 /// order on one env, from its run's test seeds); its summary's test and its card rewritten,
 /// each whole (written aside, then renamed).
 fn retest(entry: &Path, episodes: Option<usize>) -> Result<()> {
-    let run = RunDir::new(entry);
-    if !run.is_zoo_entry() {
-        bail!(
-            "{}: not a zoo entry (`rdpg zoo --run` makes one)",
-            entry.display()
-        );
-    }
+    let run = zoo_entry(entry)?;
     let mut zs: ZooSummary = read_json(&run.summary())?;
     let (exp, mut policy) = run.policy(Which::Best)?;
     let t = &exp.train;
