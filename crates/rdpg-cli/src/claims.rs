@@ -7,6 +7,9 @@
 //! same numbers as `rdpg table --versus`). Its verdict, once both rows have every seed the
 //! sweep declares: **holds** where the interval lies above 0, **does not hold** where it lies
 //! below, **unresolved** otherwise; before that the numbers so far are shown as **pending**.
+//! A sweep that declares fewer than [`MIN_SEEDS`] seeds gets no verdict but "unresolved": its
+//! rows resample too few seeds for a percentile interval (2 seeds give 3 distinct resamples
+//! of a row), and the results protocol reports the IQM interval from 3 seeds on.
 //! A claim holds when every one of its pairs holds.
 //!
 //! ```toml
@@ -42,6 +45,9 @@ pub struct ClaimsArgs {
 /// Bootstrap resamples per pair (as `rdpg table`'s default).
 const RESAMPLES: usize = 10_000;
 
+/// The fewest declared seeds whose bootstrap interval can decide a claim.
+const MIN_SEEDS: usize = 3;
+
 /// A claims file.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -74,6 +80,8 @@ enum Verdict {
     Holds,
     Reversed,
     Unresolved,
+    /// Every declared seed has run, but the sweep declares fewer than [`MIN_SEEDS`].
+    TooFewSeeds,
 }
 
 /// One pair's numbers (none before both rows have a seed) and verdict.
@@ -100,6 +108,8 @@ fn measure(rows: &[Row], better: &str, worse: &str, declared: usize) -> Pair {
     let (d, lo, hi) = iqm_difference(&a, &b, RESAMPLES, &mut NpRng::from_seed(0));
     let verdict = if a.len() < declared || b.len() < declared {
         Verdict::Pending
+    } else if declared < MIN_SEEDS {
+        Verdict::TooFewSeeds
     } else if lo > 0.0 {
         Verdict::Holds
     } else if hi < 0.0 {
@@ -146,6 +156,8 @@ fn overall(pairs: &[Pair], declared: usize) -> String {
         "**holds**".into()
     } else if any(Verdict::Reversed) {
         "**does not hold**".into()
+    } else if any(Verdict::TooFewSeeds) {
+        format!("unresolved at {declared} seeds (a verdict needs {MIN_SEEDS})")
     } else {
         format!("unresolved at {declared} seeds")
     }
@@ -204,7 +216,9 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
            interquartile means of their stock-reward tests (each seed's first 100 test \
            episodes, pooled), its 95 % CI a percentile bootstrap over seeds. Holds: every \
            interval above 0; does not hold: one below 0; unresolved: otherwise, once every \
-           declared seed has run; pending: the numbers so far.\n";
+           declared seed has run, and wherever the sweep declares fewer than 3 seeds (a \
+           bootstrap over 2 seeds has 3 distinct resamples per row); pending: the numbers so \
+           far.\n";
     let _ = writeln!(md, "\nMade by `rdpg claims {}`.", a.file.display());
     print!("{md}");
     if let Some(out) = &a.out {

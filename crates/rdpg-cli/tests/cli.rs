@@ -1819,34 +1819,50 @@ fn committed_tables_regenerate_from_their_result_files() {
 }
 
 /// `rdpg claims`: a claim's verdict follows the CI of its IQM difference (the committed Table I
-/// rows: injection above RDPG holds, the reverse ordering does not hold); a row the sweep does
-/// not have and an unknown key are refused by name.
+/// rows: injection above RDPG holds, the reverse ordering does not hold), and a sweep of 2
+/// seeds gets none (fig6-bptt: its interval excludes 0, yet 2 seeds cannot decide); a row the
+/// sweep does not have and an unknown key are refused by name.
 #[test]
 fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let dir = tmp("claims");
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("claims.toml");
-    let claim = |better: &str, worse: &str| {
+    let claim_in = |sweep: &str, better: &str, worse: &str| {
         format!(
-            "[[claim]]\nclaim = \"c\"\npaper = \"p\"\nsweep = \"sweeps/table1-cpu.toml\"\n\
+            "[[claim]]\nclaim = \"c\"\npaper = \"p\"\nsweep = \"sweeps/{sweep}.toml\"\n\
              better = [\"{better}\"]\nworse = \"{worse}\"\n"
         )
     };
+    let claim = |better: &str, worse: &str| claim_in("table1-cpu", better, worse);
     let run = |body: &str| {
         std::fs::write(&file, body).unwrap();
         let mut c = rdpg();
         c.current_dir(&root).arg("claims").arg(&file);
         c
     };
-    let body = claim("rdpg-injection", "rdpg") + &claim("rdpg", "rdpg-injection");
+    let body = claim("rdpg-injection", "rdpg")
+        + &claim("rdpg", "rdpg-injection")
+        + &claim_in(
+            "fig6-bptt",
+            "l8-u8-s24-actor_bptt=false",
+            "l8-u8-s24-actor_bptt=true",
+        );
     let out = String::from_utf8(ok(&mut run(&body)).stdout).unwrap();
     let verdicts: Vec<&str> = out
         .lines()
         .filter(|l| l.starts_with("| c |"))
         .map(|l| l.split(" | ").nth(3).unwrap())
         .collect();
-    assert_eq!(verdicts, ["**holds**", "**does not hold**"], "{out}");
+    assert_eq!(
+        verdicts,
+        [
+            "**holds**",
+            "**does not hold**",
+            "unresolved at 2 seeds (a verdict needs 3)"
+        ],
+        "{out}"
+    );
     fails(
         &mut run(&claim("rdpg", "ddpg-typo")),
         &["no row \"ddpg-typo\""],
