@@ -213,6 +213,12 @@ pub struct RdpgConfig {
     /// re-encodes the `k - 1` steps before the tail from zero. Needs target networks and the
     /// tail bootstrap; any `opt_len` (n-step returns).
     pub act_window: usize,
+    /// With `act_window`: the losses back-propagate through the whole `k`-step window, the
+    /// `k - 1` history steps included, as LSTM-TD3 and SAC-LSTM train (the critic loss into
+    /// the critic's encoding of the replayed history, the actor loss into the actor's). Off
+    /// (the default): the history is encoded without gradient, so only the trained step's
+    /// cell learns and nothing trains how the LSTM summarises the history.
+    pub window_grad: bool,
     /// Target policy smoothing noise on the bootstrap action (TD3); none when `None`.
     pub target_noise: Option<TargetNoise>,
     /// TD3's delayed policy updates: the actor and the target networks are updated on every
@@ -292,6 +298,7 @@ impl Default for RdpgConfig {
             twin_critic: false,
             burn_in_from_stored_state: false,
             act_window: 0,
+            window_grad: false,
             target_noise: None,
             policy_delay: 1,
             actor_uses_updated_critic: true,
@@ -475,6 +482,13 @@ impl RdpgConfig {
         }
         if !self.recurrent && self.burn_in_from_stored_state {
             return Err(bad("burn_in_from_stored_state", "needs a recurrent agent"));
+        }
+        if self.window_grad && self.act_window == 0 {
+            return Err(bad(
+                "window_grad",
+                "needs a window-of-k agent (act_window >= 2): without one the scan is a \
+                 burn-in, never back-propagated",
+            ));
         }
         if self.act_window > 0 {
             let k = self.act_window;

@@ -196,7 +196,7 @@ pub fn update_flops(cfg: &RdpgConfig, obs_dim: usize, act_dim: usize) -> PhaseFl
     // 2a. No gradient along the window: the behaviour actor's states (per-step actor gradient),
     // mu' and Q' at the tail, or the per-step TD(0) targets (mu' along the window, each target
     // critic along the replayed actions and one cell step on (o_{i+1}, mu'(o_{i+1}))).
-    let states = if rec && !cfg.actor_bptt {
+    let states = if rec && !cfg.actor_bptt && !cfg.window_grad {
         n * l * actor.trunk() + n * (l - 1.0) * actor.core()
     } else {
         0.0

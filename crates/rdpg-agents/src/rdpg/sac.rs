@@ -80,25 +80,27 @@ impl RdpgAgent {
         // ---- 1. Scan: h_{-1} of the actor, the critics and the target critics. ------------
         let method = self.cfg.scan_method;
         let actor_init = self.actor_init(&p);
-        let sc = tch::no_grad(|| Scanned {
-            actor: Some(scan_actor(&self.actor, &p, &actor_init, method)),
+        let sc = Scanned {
+            actor: Some(self.history_grad(|| scan_actor(&self.actor, &p, &actor_init, method))),
             critics: self
                 .critics
                 .iter()
-                .map(|c| scan_critic(c, &p, method))
+                .map(|c| self.history_grad(|| scan_critic(c, &p, method)))
                 .collect(),
             target_actor: None,
-            target_critics: self.targets.as_ref().map_or_else(Vec::new, |t| {
-                t.critics
-                    .iter()
-                    .map(|c| super::update::scan_target_critic(c, &p, method))
-                    .collect()
+            target_critics: tch::no_grad(|| {
+                self.targets.as_ref().map_or_else(Vec::new, |t| {
+                    t.critics
+                        .iter()
+                        .map(|c| super::update::scan_target_critic(c, &p, method))
+                        .collect()
+                })
             }),
-        });
+        };
         clock.lap(|t| &mut t.scan);
 
         // ---- 2. Critics: the soft tail-step bootstrap (Eq. (5), (3)) and their Adam step. ----
-        let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+        let need_states = self.actor_states_detached();
         let (actor_states, x_tail, y_tail) = tch::no_grad(|| self.actor_along_window(&p, &sc));
         let eps_tail = self.standard_normal(&[p.n, self.act_dim as i64]); // [N, A]
         let (a_tail, logp_tail) = tch::no_grad(|| {
@@ -233,7 +235,7 @@ impl RdpgAgent {
         sc: &Scanned,
     ) -> (Option<(Tensor, Tensor)>, Tensor, Tensor) {
         let actor = &self.actor;
-        let need_states = actor.core.is_recurrent() && !self.cfg.actor_bptt;
+        let need_states = self.actor_states_detached();
         let xa = actor.input_seq(&p.obs_win); // [N, l+1, E]
         let (ya, states) = if need_states {
             let (ya, hb, cb, _) = actor.core.stepwise(&xa, sc.actor());

@@ -156,30 +156,34 @@ impl RdpgAgent {
             p.shallow_clone(),
             actor_init.shallow_clone(),
         );
+        let window_grad = self.cfg.window_grad;
         // The actor (behaviour or target) scanned here.
         let here = if with_actor { &self.actor } else { t_actor };
         let ((h_a, h0, th0), (h1, th1, h_ta)) = side.run(
             self.cfg.flush_denormal,
             || {
-                tch::no_grad(|| {
-                    (
-                        match with_actor {
-                            true => scan_actor(here, p, &actor_init, method),
-                            false => scan_target_actor(here, p, &actor_init, method),
-                        },
-                        scan_critic(&self.critics[0], p, method),
-                        scan_target_critic(&t.critics[0], p, method),
-                    )
-                })
+                (
+                    match with_actor {
+                        true => self.history_grad(|| scan_actor(here, p, &actor_init, method)),
+                        false => tch::no_grad(|| scan_target_actor(here, p, &actor_init, method)),
+                    },
+                    self.history_grad(|| scan_critic(&self.critics[0], p, method)),
+                    tch::no_grad(|| scan_target_critic(&t.critics[0], p, method)),
+                )
             },
             move || {
-                tch::no_grad(|| {
-                    (
-                        scan_critic(&c1, &p1, method),
-                        scan_target_critic(&t1, &p1, method),
-                        with_actor.then(|| scan_target_actor(&ta, &p1, &init1, method)),
-                    )
-                })
+                // Critic 1's scan keeps its graph for a `window_grad` agent, as critic 0's.
+                let c1_scan = || scan_critic(&c1, &p1, method);
+                (
+                    if window_grad {
+                        c1_scan()
+                    } else {
+                        tch::no_grad(c1_scan)
+                    },
+                    tch::no_grad(|| scan_target_critic(&t1, &p1, method)),
+                    with_actor
+                        .then(|| tch::no_grad(|| scan_target_actor(&ta, &p1, &init1, method))),
+                )
             },
         );
         let (actor, target_actor) = match h_ta {
@@ -215,7 +219,7 @@ impl RdpgAgent {
         clock: &mut Clock,
     ) -> (Tensor, Tensor, Option<(Tensor, Tensor)>) {
         let ftz = self.cfg.flush_denormal;
-        let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+        let need_states = self.actor_states_detached();
         let (mut a_tail, actor_states) = {
             let t_actor = self.target_actor().expect("validated: target networks");
             let h = sc.target_actor.as_ref().expect("scanned with the targets");

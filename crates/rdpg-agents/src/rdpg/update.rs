@@ -42,7 +42,10 @@
 //! acting actor's `k`-observation window: the scan (`s = k - 1`) starts from zero, the critic
 //! and the actor train on the window's first step only, and step 2a's bootstrap re-encodes the
 //! `k - 1` steps before `o_tail` from zero (`Prepared::window_tail`) instead of continuing the
-//! target networks' run along the window.
+//! target networks' run along the window. With `window_grad` the behaviour networks' scans
+//! keep their graph: the critic loss back-propagates through the critic's encoding of the
+//! `k - 1` replayed history steps, and the actor loss (BPTT) through the actor's, as LSTM-TD3
+//! trains its history.
 //!
 //! With `policy_delay = d > 1` (TD3) steps 3 and 4 run on every `d`-th update only; the
 //! critic steps every time.
@@ -304,7 +307,7 @@ impl RdpgAgent {
                 (q_sa, y, actor_states)
             }
             CriticTarget::PerStepTd0 => {
-                let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+                let need_states = self.actor_states_detached();
                 let actor_states = sc
                     .actor
                     .as_ref()
@@ -333,7 +336,7 @@ impl RdpgAgent {
         p: &Prepared,
         sc: &Scanned,
     ) -> (Option<(Tensor, Tensor)>, Tensor) {
-        let need_states = self.actor.core.is_recurrent() && !self.cfg.actor_bptt;
+        let need_states = self.actor_states_detached();
         if let (Some(ta), Some(h)) = (self.target_actor(), &sc.target_actor) {
             // The bootstrap comes from mu': the behaviour actor runs for its states only, on
             // the actor's turn (when it was scanned).
@@ -471,29 +474,47 @@ impl RdpgAgent {
         self.scan_for(p, true)
     }
 
-    /// Step 1 without gradient for every network the update reads: the behaviour actor only
-    /// with `actor` (its states serve the actor's turn alone when target networks give the
-    /// bootstrap; see [`RdpgAgent::scans_actor`]).
+    /// Step 1 for every network the update reads: the behaviour actor only with `actor` (its
+    /// states serve the actor's turn alone when target networks give the bootstrap; see
+    /// [`RdpgAgent::scans_actor`]). Without gradient, except the behaviour networks' scans of
+    /// a `window_grad` agent ([`RdpgAgent::history_grad`]).
     pub(super) fn scan_for(&self, p: &Prepared, actor: bool) -> Scanned {
         let method = self.cfg.scan_method;
         let actor_init = self.actor_init(p);
-        tch::no_grad(|| Scanned {
-            actor: actor.then(|| scan_actor(&self.actor, p, &actor_init, method)),
+        Scanned {
+            actor: actor
+                .then(|| self.history_grad(|| scan_actor(&self.actor, p, &actor_init, method))),
             critics: self
                 .critics
                 .iter()
-                .map(|c| scan_critic(c, p, method))
+                .map(|c| self.history_grad(|| scan_critic(c, p, method)))
                 .collect(),
             target_actor: self
                 .target_actor()
-                .map(|ta| scan_target_actor(ta, p, &actor_init, method)),
+                .map(|ta| tch::no_grad(|| scan_target_actor(ta, p, &actor_init, method))),
             target_critics: self.targets.as_ref().map_or_else(Vec::new, |t| {
                 t.critics
                     .iter()
-                    .map(|c| scan_target_critic(c, p, method))
+                    .map(|c| tch::no_grad(|| scan_target_critic(c, p, method)))
                     .collect()
             }),
-        })
+        }
+    }
+
+    /// Runs a behaviour network's scan `f`: recording its graph for a `window_grad` agent (the
+    /// losses back-propagate through the window's history), without gradient otherwise.
+    pub(super) fn history_grad<T>(&self, f: impl FnOnce() -> T) -> T {
+        if self.cfg.window_grad {
+            f()
+        } else {
+            tch::no_grad(f)
+        }
+    }
+
+    /// Whether the actor loss feeds each window step a constant actor state (the paper's
+    /// actor without BPTT): a recurrent actor, without `actor_bptt` or `window_grad`.
+    pub(super) fn actor_states_detached(&self) -> bool {
+        self.actor.core.is_recurrent() && !self.cfg.actor_bptt && !self.cfg.window_grad
     }
 
     /// The target actor, if there is one (`tau > 0`, not SAC).

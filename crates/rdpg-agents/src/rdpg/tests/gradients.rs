@@ -81,6 +81,62 @@ fn actor_loss_gradient_matches_finite_differences() {
     }
 }
 
+/// `window_grad`: the critic and actor losses of a window-of-k agent back-propagate through
+/// the window's `k - 1` history steps. The critic's gradient is the finite difference of its
+/// loss with the history encoded inside it, and both losses have a gradient w.r.t. the history
+/// observations; without `window_grad` the history is a constant: the finite differences
+/// disagree and the history observations get no gradient.
+#[test]
+fn window_grad_back_propagates_through_the_history() {
+    for window_grad in [true, false] {
+        let cfg = RdpgConfig {
+            window_grad,
+            ..window_cfg(4)
+        };
+        let mut agent = RdpgAgent::new_with_kind(cfg.clone(), OBS, ACT, 23, Kind::Double).unwrap();
+        let b = batch(&cfg, 5, 0.5, 10);
+        let mut p = agent.prepare(&b);
+        let y = tch::no_grad(|| {
+            let sc = agent.scan_all(&p);
+            let (_, a_tail) = agent.actor_window(&p, &sc);
+            let q_tail = agent.target_tail_q(&p, &sc, &a_tail).unwrap();
+            td_targets(&p, &q_tail)
+        });
+        let critic_loss_of = |agent: &RdpgAgent, p: &Prepared| {
+            let sc = agent.scan_for(p, false);
+            critic_loss_from(p, &trained_q(&agent.critics[0], p, &sc.critics[0]), &y)
+        };
+        agent.critic_opt.zero_grad();
+        critic_loss_of(&agent, &p).backward();
+        let f = || tch::no_grad(|| critic_loss_of(&agent, &p).double_value(&[]));
+        let mismatch = grad_mismatch(&agent.critic_vs[0], &f);
+        assert_eq!(mismatch.is_none(), window_grad, "{mismatch:?}");
+
+        // The history observations as leaves: does each loss reach them?
+        let critic_states = tch::no_grad(|| agent.updated_critic_states(&p));
+        let history_grad = |p: &mut Prepared, loss: &dyn Fn(&Prepared) -> Tensor| {
+            p.obs_scan = p.obs_scan.detach().set_requires_grad(true);
+            loss(p).backward();
+            let g = p.obs_scan.grad();
+            g.defined() && g.abs().sum(Kind::Double).double_value(&[]) > 0.0
+        };
+        let actor_loss_of = |p: &Prepared| {
+            let sc = agent.scan_for(p, true);
+            let detached = agent
+                .actor_states_detached()
+                .then(|| tch::no_grad(|| actor_states(&agent.actor, p, sc.actor())));
+            let input = match &detached {
+                Some((h, c)) => ActorInput::Detached { h, c },
+                None => ActorInput::Bptt { h0: sc.actor() },
+            };
+            actor_loss(&agent.actor, &agent.critics[0], p, input, &critic_states).0
+        };
+        assert_eq!(history_grad(&mut p, &actor_loss_of), window_grad, "actor");
+        let critic = |p: &Prepared| critic_loss_of(&agent, p);
+        assert_eq!(history_grad(&mut p, &critic), window_grad, "critic");
+    }
+}
+
 #[test]
 fn bptt_and_per_step_gradients_differ_but_agree_on_the_first_step() {
     // The actor's gradient with and without BPTT, for windows of l steps.
@@ -355,7 +411,19 @@ fn parallel_twins_update_bit_for_bit_like_one_thread() {
         ..recurrent.clone()
     };
     let window = twin_td3(window_cfg(4));
-    for cfg in [recurrent, feed_forward, deferred, fork_cfg(), window] {
+    // The history scans with gradient: critic 1's graph built on the second thread.
+    let window_grad = RdpgConfig {
+        window_grad: true,
+        ..window.clone()
+    };
+    for cfg in [
+        recurrent,
+        feed_forward,
+        deferred,
+        fork_cfg(),
+        window,
+        window_grad,
+    ] {
         let parallel = RdpgConfig {
             parallel_twins: true,
             ..cfg.clone()

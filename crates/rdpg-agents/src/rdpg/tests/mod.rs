@@ -10,8 +10,10 @@ use super::agent::RdpgAgent;
 use super::bench::synthetic_batch;
 use super::config::{ForkConfig, RdpgConfig, ScanMethod, Trunk};
 use super::lstm::RecState;
+use super::prepared::Prepared;
 use super::update::{
-    actor_loss, critic_loss_from, scan_critic, tail_action, target_q, td_targets, ActorInput,
+    actor_loss, actor_states, critic_loss_from, scan_critic, tail_action, target_q, td_targets,
+    trained_q, ActorInput,
 };
 use crate::common::tensor::{sorted_vars, tensor_to_vec64 as to_vec64, DeviceSpec};
 use crate::common::UpdateStats;
@@ -208,12 +210,23 @@ fn regenerate_masks(mut b: SequenceBatch) -> SequenceBatch {
 /// Central finite differences of `loss` w.r.t. a few entries of every variable of `vs`,
 /// compared to the autograd gradient (already in the variables' `.grad`).
 fn check_grads(vs: &VarStore, loss: &dyn Fn() -> f64, what: &str) {
+    if let Some(m) = grad_mismatch(vs, loss) {
+        panic!("{what}: {m}");
+    }
+}
+
+/// The first entry (of a few per variable of `vs`) whose autograd gradient (already in the
+/// variables' `.grad`) differs from the central finite difference of `loss`, described; `None`
+/// when all agree.
+fn grad_mismatch(vs: &VarStore, loss: &dyn Fn() -> f64) -> Option<String> {
     let eps = 1e-6;
     let mut checked = 0;
     for (name, var) in sorted_vars(vs) {
         let n = var.numel() as i64;
         let g = var.grad();
-        assert!(g.defined(), "{what}: no gradient for {name}");
+        if !g.defined() {
+            return Some(format!("no gradient for {name}"));
+        }
         let g = to_vec64(&g);
         for idx in [0, n / 2, n - 1] {
             let bump = |delta: f64| {
@@ -228,14 +241,16 @@ fn check_grads(vs: &VarStore, loss: &dyn Fn() -> f64, what: &str) {
             bump(eps);
             let fd = (lp - lm) / (2.0 * eps);
             let ad = g[idx as usize];
-            assert!(
-                (fd - ad).abs() <= 1e-6 * (1.0 + ad.abs()),
-                "{what}: d/d {name}[{idx}]: autograd {ad} vs finite difference {fd}"
-            );
+            if (fd - ad).abs() > 1e-6 * (1.0 + ad.abs()) {
+                return Some(format!(
+                    "d/d {name}[{idx}]: autograd {ad} vs finite difference {fd}"
+                ));
+            }
             checked += 1;
         }
     }
     assert!(checked > 10);
+    None
 }
 
 fn full_cfg() -> RdpgConfig {

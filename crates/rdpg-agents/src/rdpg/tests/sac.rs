@@ -313,7 +313,7 @@ fn acting_samples_and_evaluating_takes_the_mean() {
 
 /// A checkpoint holds `log_alpha` and its Adam moments (and no target actor): a loaded agent
 /// continues bit-identically, and its parameter count is the config's; for an LSTM agent, a
-/// window-of-k one (`act_window`) and one with TQC's critics.
+/// window-of-k one (`act_window`, with and without `window_grad`) and one with TQC's critics.
 #[test]
 fn a_checkpoint_continues_identically() {
     let window = RdpgConfig {
@@ -321,6 +321,10 @@ fn a_checkpoint_continues_identically() {
         scan_len: 2,
         update_len: 1,
         ..sac_cfg(true)
+    };
+    let window_grad = RdpgConfig {
+        window_grad: true,
+        ..window.clone()
     };
     let base = sac_cfg(true);
     let tqc = RdpgConfig {
@@ -333,7 +337,7 @@ fn a_checkpoint_continues_identically() {
         }),
         ..base
     };
-    for cfg in [sac_cfg(true), window, tqc] {
+    for cfg in [sac_cfg(true), window, window_grad, tqc] {
         checkpoint_round_trip(cfg);
     }
 }

@@ -410,4 +410,10 @@ fn window_configs_are_checked() {
         let e = bad.validate().unwrap_err().to_string();
         assert!(e.contains("act_window"), "{e}");
     }
+    let no_window = RdpgConfig {
+        window_grad: true,
+        ..tiny()
+    };
+    let e = no_window.validate().unwrap_err().to_string();
+    assert!(e.contains("window_grad") && e.contains("act_window"), "{e}");
 }
