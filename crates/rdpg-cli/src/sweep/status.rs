@@ -59,13 +59,14 @@ pub(super) struct TrialStatus {
     pub rate: Option<f64>,
 }
 
-/// Agent steps per second over the metrics rows of the last `span` steps (at least two rows
-/// and a positive wall-clock interval needed).
-pub(super) fn recent_rate(rows: &[(u64, f64)], span: u64) -> Option<f64> {
+/// Agent steps per second over the metrics rows of the last `span` steps, none of them before
+/// `learning_from` (the warm-up steps, which run without updates and many times faster); at
+/// least two rows and a positive wall-clock interval needed.
+pub(super) fn recent_rate(rows: &[(u64, f64)], span: u64, learning_from: u64) -> Option<f64> {
     let &(step, wall) = rows.last()?;
     let from = rows
         .iter()
-        .find(|&&(s, _)| s + span >= step)
+        .find(|&&(s, _)| s + span >= step && s >= learning_from)
         .filter(|&&(s, _)| s < step)?;
     let dt = wall - from.1;
     (dt > 0.0).then(|| (step - from.0) as f64 / dt)
@@ -126,7 +127,12 @@ fn trial_status(sweep: &Sweep, t: &Trial) -> Result<TrialStatus> {
     if let Some(&(step, wall)) = rows.last() {
         (s.steps, s.wall) = (step, wall);
     }
-    s.rate = recent_rate(&rows, (t.steps / 10).max(1));
+    let warmup = run
+        .experiment()
+        .ok()
+        .and_then(|e| e.off_policy)
+        .map_or(0, |o| o.warmup_steps);
+    s.rate = recent_rate(&rows, (t.steps / 10).max(1), warmup);
     for m in &metrics {
         if let Metric::Eval {
             step, mean_return, ..
@@ -295,12 +301,19 @@ mod tests {
     fn the_recent_rate_spans_the_last_rows() {
         let rows = [(0, 0.0), (100, 10.0), (200, 30.0), (300, 50.0)];
         // Over the last 200 steps: from (100, 10) to (300, 50).
-        assert_eq!(recent_rate(&rows, 200), Some(5.0));
+        assert_eq!(recent_rate(&rows, 200, 0), Some(5.0));
         // Over the last 100: (200, 30) to (300, 50).
-        assert_eq!(recent_rate(&rows, 100), Some(5.0));
-        assert_eq!(recent_rate(&rows, 1000), Some(6.0));
-        assert_eq!(recent_rate(&rows[..1], 100), None, "one row has no speed");
-        assert_eq!(recent_rate(&[(5, 1.0), (5, 1.0)], 10), None);
+        assert_eq!(recent_rate(&rows, 100, 0), Some(5.0));
+        assert_eq!(recent_rate(&rows, 1000, 0), Some(6.0));
+        // Warm-up to step 150: the span starts at (200, 30); to 300, no speed yet.
+        assert_eq!(recent_rate(&rows, 1000, 150), Some(5.0));
+        assert_eq!(recent_rate(&rows, 1000, 300), None);
+        assert_eq!(
+            recent_rate(&rows[..1], 100, 0),
+            None,
+            "one row has no speed"
+        );
+        assert_eq!(recent_rate(&[(5, 1.0), (5, 1.0)], 10, 0), None);
     }
 
     #[test]
