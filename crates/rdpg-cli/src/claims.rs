@@ -7,7 +7,7 @@
 //! same numbers as `rdpg table --versus`). Its verdict, once both rows have every seed the
 //! sweep declares: **holds** where the interval lies above 0, **does not hold** where it lies
 //! below, **unresolved** otherwise; before that the numbers so far are shown as **pending**.
-//! A sweep that declares fewer than [`MIN_SEEDS`] seeds gets no verdict but "unresolved": its
+//! A sweep that declares fewer than [`CI_MIN_SEEDS`] seeds gets no verdict but "unresolved": its
 //! rows resample too few seeds for a percentile interval (2 seeds give 3 distinct resamples
 //! of a row), and the results protocol reports the IQM interval from 3 seeds on.
 //! A claim holds when every one of its pairs holds.
@@ -30,7 +30,7 @@ use rdpg_core::rng::NpRng;
 use serde::Deserialize;
 
 use crate::sweep::Sweep;
-use crate::table::{iqm_difference, load_rows, Row};
+use crate::table::{iqm_difference, load_rows, seeds_word, Row, CI_MIN_SEEDS};
 
 /// Arguments of `rdpg claims`.
 #[derive(Debug, Args)]
@@ -44,9 +44,6 @@ pub struct ClaimsArgs {
 
 /// Bootstrap resamples per pair (as `rdpg table`'s default).
 const RESAMPLES: usize = 10_000;
-
-/// The fewest declared seeds whose bootstrap interval can decide a claim.
-const MIN_SEEDS: usize = 3;
 
 /// A claims file.
 #[derive(Debug, Deserialize)]
@@ -80,7 +77,7 @@ enum Verdict {
     Holds,
     Reversed,
     Unresolved,
-    /// Every declared seed has run, but the sweep declares fewer than [`MIN_SEEDS`].
+    /// Every declared seed has run, but the sweep declares fewer than [`CI_MIN_SEEDS`].
     TooFewSeeds,
 }
 
@@ -108,7 +105,7 @@ fn measure(rows: &[Row], better: &str, worse: &str, declared: usize) -> Pair {
     let (d, lo, hi) = iqm_difference(&a, &b, RESAMPLES, &mut NpRng::from_seed(0));
     let verdict = if a.len() < declared || b.len() < declared {
         Verdict::Pending
-    } else if declared < MIN_SEEDS {
+    } else if declared < CI_MIN_SEEDS {
         Verdict::TooFewSeeds
     } else if lo > 0.0 {
         Verdict::Holds
@@ -117,8 +114,14 @@ fn measure(rows: &[Row], better: &str, worse: &str, declared: usize) -> Pair {
     } else {
         Verdict::Unresolved
     };
+    let fewest = a.len().min(b.len());
+    let interval = if fewest < CI_MIN_SEEDS {
+        format!("({}: no CI)", seeds_word(fewest))
+    } else {
+        format!("[{lo:+.1}, {hi:+.1}]")
+    };
     Pair {
-        text: Some(format!("{better} − {worse}: {d:+.1} [{lo:+.1}, {hi:+.1}]")),
+        text: Some(format!("{better} − {worse}: {d:+.1} {interval}")),
         verdict,
     }
 }
@@ -157,7 +160,7 @@ fn overall(pairs: &[Pair], declared: usize) -> String {
     } else if any(Verdict::Reversed) {
         "**does not hold**".into()
     } else if any(Verdict::TooFewSeeds) {
-        format!("unresolved at {declared} seeds (a verdict needs {MIN_SEEDS})")
+        format!("unresolved at {declared} seeds (a verdict needs {CI_MIN_SEEDS})")
     } else {
         format!("unresolved at {declared} seeds")
     }

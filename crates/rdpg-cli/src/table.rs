@@ -195,6 +195,19 @@ pub(crate) fn load_rows(inputs: &[PathBuf]) -> Result<Vec<Row>> {
     Ok(rows)
 }
 
+/// The fewest seeds whose percentile bootstrap over seeds gives a confidence interval: one
+/// seed has no spread to resample and two give 3 distinct resamples of a row; the results
+/// protocol reports the IQM's interval from 3 seeds on.
+pub(crate) const CI_MIN_SEEDS: usize = 3;
+
+/// `"one seed"`, `"2 seeds"`.
+pub(crate) fn seeds_word(n: usize) -> String {
+    match n {
+        1 => "one seed".into(),
+        n => format!("{n} seeds"),
+    }
+}
+
 /// `IQM(a) - IQM(b)` of the pooled test episodes of runs `a` and `b`, with its 95 % percentile
 /// bootstrap interval: each draw resamples the runs of `a`, then of `b` (seeds are the unit).
 pub(crate) fn iqm_difference(
@@ -383,8 +396,7 @@ pub fn run(a: &TableArgs) -> Result<()> {
             },
             match tests.len() {
                 0 => "–".into(),
-                // A bootstrap over one seed has no spread to resample.
-                1 => format!("{iq:.1} (one seed: no CI)"),
+                n if n < CI_MIN_SEEDS => format!("{iq:.1} ({}: no CI)", seeds_word(n)),
                 _ => format!("{iq:.1} [{lo:.1}, {hi:.1}]"),
             },
             fmt_opt(success),
@@ -402,10 +414,12 @@ pub fn run(a: &TableArgs) -> Result<()> {
             let cell = if a.versus.as_ref() == Some(&r.name) {
                 "(reference)".into()
             } else {
-                let one_seed = tests.len() < 2 || versus.as_ref().is_some_and(|v| v.len() < 2);
+                let fewest = versus
+                    .as_ref()
+                    .map_or(tests.len(), |v| v.len().min(tests.len()));
                 diff.map_or("–".into(), |(d, l, h)| {
-                    if one_seed {
-                        format!("{d:+.1} (one seed: no CI)")
+                    if fewest < CI_MIN_SEEDS {
+                        format!("{d:+.1} ({}: no CI)", seeds_word(fewest))
                     } else {
                         format!("{d:+.1} [{l:+.1}, {h:+.1}]")
                     }

@@ -1863,6 +1863,10 @@ fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
         ],
         "{out}"
     );
+    assert!(
+        out.contains("actor_bptt=true: +16.2 (2 seeds: no CI)"),
+        "{out}"
+    );
     fails(
         &mut run(&claim("rdpg", "ddpg-typo")),
         &["no row \"ddpg-typo\""],
