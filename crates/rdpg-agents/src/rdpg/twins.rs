@@ -25,8 +25,8 @@ use super::nets::Critic;
 use super::prepared::Prepared;
 use super::profile::Clock;
 use super::update::{
-    actor_states, critic_loss_from, scan_actor, scan_critic, scan_target_actor, scan_target_critic,
-    soft_update, tail_action, target_q, td_targets, trained_q, Scanned,
+    actor_states, critic_loss_from, grad_if, scan_actor, scan_critic, scan_target_actor,
+    scan_target_critic, soft_update, tail_action, target_q, td_targets, trained_q, Scanned,
 };
 use crate::common::side_thread::SideThread;
 use crate::common::UpdateStats;
@@ -173,13 +173,8 @@ impl RdpgAgent {
             },
             move || {
                 // Critic 1's scan keeps its graph for a `window_grad` agent, as critic 0's.
-                let c1_scan = || scan_critic(&c1, &p1, method);
                 (
-                    if window_grad {
-                        c1_scan()
-                    } else {
-                        tch::no_grad(c1_scan)
-                    },
+                    grad_if(window_grad, || scan_critic(&c1, &p1, method)),
                     tch::no_grad(|| scan_target_critic(&t1, &p1, method)),
                     with_actor
                         .then(|| tch::no_grad(|| scan_target_actor(&ta, &p1, &init1, method))),

@@ -504,11 +504,7 @@ impl RdpgAgent {
     /// Runs a behaviour network's scan `f`: recording its graph for a `window_grad` agent (the
     /// losses back-propagate through the window's history), without gradient otherwise.
     pub(super) fn history_grad<T>(&self, f: impl FnOnce() -> T) -> T {
-        if self.cfg.window_grad {
-            f()
-        } else {
-            tch::no_grad(f)
-        }
+        grad_if(self.cfg.window_grad, f)
     }
 
     /// Whether the actor loss feeds each window step a constant actor state (the paper's
@@ -541,6 +537,15 @@ impl RdpgAgent {
     /// gradient).
     pub(super) fn critic_states(&self, p: &Prepared, h: &RecState) -> (Tensor, Tensor) {
         critic_states(&self.critics[0], p, h)
+    }
+}
+
+/// Runs `f` recording its autograd graph when `record`, without gradient otherwise.
+pub(super) fn grad_if<T>(record: bool, f: impl FnOnce() -> T) -> T {
+    if record {
+        f()
+    } else {
+        tch::no_grad(f)
     }
 }
 
