@@ -444,6 +444,12 @@ pub struct EvalArgs {
     /// episodes and returns (scripts/reference/replay_actions.py).
     #[arg(long, value_name = "FILE")]
     actions_out: Option<PathBuf>,
+    /// A memory probe for recurrent agents: act remembering at most the last K observations,
+    /// the current one included (the recurrent state re-encoded from zero over them at every
+    /// step, as a window-of-K agent acts; 1: no memory). The returns show how far back the
+    /// agent's memory matters; they are not its test score.
+    #[arg(long, value_name = "K")]
+    memory: Option<usize>,
 }
 
 /// Arguments of `rdpg record`.
@@ -599,6 +605,11 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         bail!("--episodes must be at least 1");
     }
     let (exp, mut policy) = RunDir::new(&a.run).policy(a.checkpoint)?;
+    if let Some(k) = a.memory {
+        policy
+            .limit_memory(k)
+            .with_context(|| format!("--memory {k} on {}", a.run.display()))?;
+    }
     let seed = a.seed.unwrap_or(exp.train.test_seed);
     let episodes = a.episodes.unwrap_or(exp.train.test_episodes);
     let r = match &a.actions_out {
@@ -625,6 +636,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     struct Line<'a> {
         run: String,
         checkpoint: String,
+        /// `--memory`: the observations the agent remembered at most.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        memory: Option<usize>,
         env: &'a str,
         episodes: usize,
         first_seed: u64,
@@ -643,6 +657,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     let line = Line {
         run: a.run.display().to_string(),
         checkpoint: a.checkpoint.to_string(),
+        memory: a.memory,
         env: &exp.train.env,
         episodes,
         first_seed: seed,

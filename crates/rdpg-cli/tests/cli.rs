@@ -599,6 +599,28 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     // CueMemory episodes end with the answer (6 steps), never at the time limit.
     assert_eq!(line["lengths"], serde_json::json!([6, 6, 6]));
     assert_eq!(line["time_limit_rate"], 0.0);
+    // `--memory K`: with K at the episode's length the agent acts as it does with its carried
+    // state (the same returns); the line says what it remembered.
+    let probe = |k: &str| -> Value {
+        let out = ok(rdpg()
+            .args(["eval", "--episodes", "3", "--memory", k, "--run"])
+            .arg(&one));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let (full, none) = (probe("6"), probe("1"));
+    assert_eq!((&full["memory"], &none["memory"]), (&6.into(), &1.into()));
+    assert!(line.get("memory").is_none());
+    for k in 0..3 {
+        let (a, b) = (&full["returns"][k], &line["returns"][k]);
+        assert!(
+            (a.as_f64().unwrap() - b.as_f64().unwrap()).abs() < 1e-4,
+            "{a} {b}"
+        );
+    }
+    fails(
+        rdpg().args(["eval", "--memory", "0", "--run"]).arg(&one),
+        &["--memory 0", "k >= 1"],
+    );
 
     // `--actions-out`: one line per episode whose actions replay (`rdpg rollout`, the same
     // contract as Gymnasium's) to the reported return.

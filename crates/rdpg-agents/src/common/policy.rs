@@ -31,6 +31,16 @@ pub trait DeterministicPolicy {
             state.len()
         )))
     }
+    /// From the next episode on, acts remembering at most the last `k` observations (the
+    /// current one included), its recurrent state re-encoded from zero over them at every
+    /// step: a probe of how far back the policy's memory matters. A policy with no memory
+    /// refuses.
+    fn limit_memory(&mut self, k: usize) -> Result<()> {
+        Err(AgentError::Config {
+            field: "memory",
+            reason: format!("this policy carries no memory to limit to {k} observation(s)"),
+        })
+    }
 }
 
 /// `a` unchanged if every component is finite, else [`AgentError::Diverged`] saying `what`

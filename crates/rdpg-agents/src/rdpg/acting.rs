@@ -39,6 +39,9 @@ impl Window {
     /// Appends `obs` (`[n_envs, obs_dim]`) to every environment's history.
     pub(super) fn push(&mut self, obs: &[f32]) {
         let (d, k1) = (self.obs_dim, self.k - 1);
+        if k1 == 0 {
+            return; // a window of the current observation alone keeps no history
+        }
         for (env, o) in obs.chunks_exact(d).enumerate() {
             let row = self.row(env);
             row.copy_within(d.., 0);

@@ -347,8 +347,32 @@ impl RdpgAgent {
 
     /// A zero actor state for `n_envs` environments.
     pub fn initial_state(&self, n_envs: usize) -> ActorState {
+        self.state_with_window(n_envs, self.cfg.act_window)
+    }
+
+    /// A zero actor state for `n_envs` environments that remembers at most the last `k`
+    /// observations, the current one included: at every step the recurrent state is
+    /// re-encoded from zero over the `k - 1` observations before it, as a window-of-k agent
+    /// acts (`k = 1`: no memory at all, the state is zero at every step). A probe of how far
+    /// back a trained recurrent actor's memory matters, for any recurrent agent whatever it
+    /// was trained with; a feed-forward agent or `k = 0` is refused.
+    pub fn initial_state_with_memory(&self, n_envs: usize, k: usize) -> Result<ActorState> {
+        if k == 0 || !self.actor.core.is_recurrent() {
+            return Err(AgentError::Config {
+                field: "memory",
+                reason: if k == 0 {
+                    "remembers at least the current observation: k >= 1".into()
+                } else {
+                    "a feed-forward actor carries no memory to limit".into()
+                },
+            });
+        }
+        Ok(self.state_with_window(n_envs, k))
+    }
+
+    /// A zero state; a window of the last `k` observations unless `k = 0`.
+    pub(crate) fn state_with_window(&self, n_envs: usize, k: usize) -> ActorState {
         let hidden = self.actor.core.state_width();
-        let k = self.cfg.act_window;
         ActorState {
             state: RecState::zeros(n_envs as i64, hidden, self.kind, self.device),
             n_envs,
@@ -455,11 +479,14 @@ impl RdpgAgent {
                 .to_device(self.device);
             if let Some(w) = &state.window {
                 // mu(o_t | the last k - 1 observations from a zero state), as training reads it.
+                let h0 = actor.core.zero_state(n as i64, self.kind, self.device);
+                if w.k == 1 {
+                    return step(&o, &h0);
+                }
                 let hist = Tensor::from_slice(&w.hist)
                     .view([n as i64, (w.k - 1) as i64, self.obs_dim as i64])
                     .to_kind(self.kind)
                     .to_device(self.device);
-                let h0 = actor.core.zero_state(n as i64, self.kind, self.device);
                 let x = actor.input_seq(&hist);
                 let h = scan_state(&actor.core, &x, &w.len, &h0, ScanMethod::Grouped);
                 return step(&o, &h);

@@ -558,19 +558,34 @@ impl Trainer for OffPolicyTrainer {
 pub struct RdpgPolicy<A> {
     agent: A,
     state: ActorState,
+    /// [`DeterministicPolicy::limit_memory`]'s `k`, if set.
+    memory: Option<usize>,
 }
 
 impl<A: Borrow<RdpgAgent>> RdpgPolicy<A> {
     /// Wraps `agent` (`RdpgAgent` or `&RdpgAgent`).
     pub fn new(agent: A) -> Self {
         let state = agent.borrow().initial_state(1);
-        Self { agent, state }
+        Self {
+            agent,
+            state,
+            memory: None,
+        }
     }
 }
 
 impl<A: Borrow<RdpgAgent>> DeterministicPolicy for RdpgPolicy<A> {
     fn begin_episode(&mut self) {
-        self.state = self.agent.borrow().initial_state(1);
+        let agent = self.agent.borrow();
+        self.state = match self.memory {
+            Some(k) => agent.state_with_window(1, k), // `k` checked by `limit_memory`
+            None => agent.initial_state(1),
+        };
+    }
+    fn limit_memory(&mut self, k: usize) -> Result<()> {
+        self.agent.borrow().initial_state_with_memory(1, k)?;
+        self.memory = Some(k);
+        Ok(())
     }
     fn act(&mut self, obs: &[f32]) -> Result<Vec<f32>> {
         self.agent.borrow().act(obs, &mut self.state)

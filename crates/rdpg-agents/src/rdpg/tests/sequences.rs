@@ -308,6 +308,74 @@ fn window_agents_act_on_their_last_k_observations() {
     assert_close(&a, &reference(7, 7), 1e-6, "after a reset");
 }
 
+/// The memory probe: a stored-state agent limited to its last `k` observations acts as a
+/// window-of-k agent would (re-encoded from zero, the current observation last); with `k`
+/// past the episode's length it acts exactly as with its carried state, with `k = 1` from a
+/// zero state at every step. A feed-forward agent and `k = 0` are refused, and a policy
+/// limited by `limit_memory` acts so from its next episode.
+#[test]
+fn memory_limit_reencodes_the_last_k_observations() {
+    use crate::common::policy::DeterministicPolicy;
+    use crate::rdpg::trainer::RdpgPolicy;
+    let agent = RdpgAgent::new_with_kind(tiny(), OBS, ACT, 2, Kind::Double).unwrap();
+    let mut rng = NpRng::from_seed(9);
+    let obs: Vec<f32> = (0..6 * OBS).map(|_| rng.standard_normal() as f32).collect();
+    let row = |t: usize| &obs[t * OBS..(t + 1) * OBS];
+    let run = |st: &mut crate::rdpg::ActorState| -> Vec<Vec<f32>> {
+        (0..6).map(|t| agent.act(row(t), st).unwrap()).collect()
+    };
+    let carried = run(&mut agent.initial_state(1));
+    let long = run(&mut agent.initial_state_with_memory(1, 10).unwrap());
+    let widen = |a: &[f32]| a.iter().map(|&x| f64::from(x)).collect::<Vec<_>>();
+    for (a, b) in carried.iter().zip(&long) {
+        assert_close(&widen(a), &widen(b), 1e-6, "k past the episode's length");
+    }
+    let k3 = run(&mut agent.initial_state_with_memory(1, 3).unwrap());
+    let none = run(&mut agent.initial_state_with_memory(1, 1).unwrap());
+    for t in 0..6_usize {
+        let mut st = agent.initial_state(1);
+        for u in t.saturating_sub(2)..t {
+            agent.act(row(u), &mut st).unwrap();
+        }
+        let a = agent.act(row(t), &mut st).unwrap();
+        assert_close(&widen(&a), &widen(&k3[t]), 1e-6, "k = 3");
+        assert_eq!(
+            agent.act(row(t), &mut agent.initial_state(1)).unwrap(),
+            none[t],
+            "k = 1 at step {t}"
+        );
+    }
+    assert_ne!(
+        carried[5], k3[5],
+        "the probe changes what the agent remembers"
+    );
+    let mut policy = RdpgPolicy::new(&agent);
+    policy.limit_memory(1).unwrap();
+    policy.begin_episode();
+    let probed: Vec<Vec<f32>> = (0..6).map(|t| policy.act(row(t)).unwrap()).collect();
+    assert_eq!(probed, none);
+    let e = agent
+        .initial_state_with_memory(1, 0)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("memory") && e.contains("k >= 1"), "{e}");
+    let ff = RdpgAgent::new(
+        RdpgConfig {
+            recurrent: false,
+            ..tiny()
+        },
+        OBS,
+        ACT,
+        2,
+    )
+    .unwrap();
+    let e = RdpgPolicy::new(&ff)
+        .limit_memory(4)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("feed-forward"), "{e}");
+}
+
 /// Window-of-k bootstrap: the target actor and critic re-encode the `k - 1` steps before each
 /// window's tail from a zero state (fewer near an episode start, the padding never entering),
 /// whatever the window's length, as the actor does when it acts at the tail.
