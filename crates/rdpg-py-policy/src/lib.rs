@@ -32,10 +32,13 @@ struct Actor {
 }
 
 impl Actor {
-    /// A fresh copy of the agent in `dir`, for actions of `act_dim` values.
-    fn load(algo: Algo, dir: &Path, act_dim: usize) -> PyResult<Self> {
+    /// A fresh copy of the agent in `dir`, for actions of `act_dim` values, remembering at
+    /// most `memory` observations when given.
+    fn load(algo: Algo, dir: &Path, act_dim: usize, memory: Option<usize>) -> PyResult<Self> {
+        let mut policy = rdpg_agents::load_policy(algo, dir).map_err(value_err)?;
+        limit(policy.as_mut(), memory)?;
         Ok(Self {
-            policy: rdpg_agents::load_policy(algo, dir).map_err(value_err)?,
+            policy,
             prev: vec![0.0; act_dim],
         })
     }
@@ -46,9 +49,22 @@ impl Actor {
     }
 }
 
+/// Limits `policy` to its last `memory` observations from its next episode on
+/// ([`DeterministicPolicy::limit_memory`]), then starts one.
+fn limit(policy: &mut dyn DeterministicPolicy, memory: Option<usize>) -> PyResult<()> {
+    if let Some(k) = memory {
+        policy
+            .limit_memory(k)
+            .map_err(|e| value_err(format!("memory={k}: {e}")))?;
+        policy.begin_episode();
+    }
+    Ok(())
+}
+
 /// A trained agent of a run or zoo directory, acting deterministically on full observations
 /// of its environment (a run trained with hidden observation components drops them itself):
-/// `Policy(path, checkpoint="best")`.
+/// `Policy(path, checkpoint="best", memory=None)`; `memory = k`: a recurrent agent
+/// remembering at most its last `k` observations (`rdpg eval --memory`).
 ///
 /// Three kinds of acting, each with its own states: `act` (one environment), `act_batch`
 /// (environment `i` of a vector env on copy `i`), and `act_states` (the state passed in and
@@ -66,6 +82,8 @@ pub struct Policy {
     batch: Vec<Actor>,
     /// `act_states`'s copy: set to each row's state, acted with, read back.
     scratch: Actor,
+    /// The observations every copy remembers at most (`None`: the whole episode).
+    memory: Option<usize>,
     /// Values of the agent's own state (0: a stateless agent).
     carried: usize,
     obs_dim: usize,
@@ -206,8 +224,8 @@ fn agent_dir(dir: &Path, checkpoint: &str) -> PyResult<PathBuf> {
 #[pymethods]
 impl Policy {
     #[new]
-    #[pyo3(signature = (path, checkpoint = "best"))]
-    fn new(path: PathBuf, checkpoint: &str) -> PyResult<Self> {
+    #[pyo3(signature = (path, checkpoint = "best", memory = None))]
+    fn new(path: PathBuf, checkpoint: &str, memory: Option<usize>) -> PyResult<Self> {
         let config = path.join("config.toml");
         let text = std::fs::read_to_string(&config).map_err(|e| {
             value_err(format!(
@@ -234,6 +252,7 @@ impl Policy {
         let env = rdpg_envs::make_with(&train.env, &EnvOptions::default())
             .map_err(|e| value_err(format!("{}: {e}", train.env)))?;
         let (agent, mut first) = AgentSnapshot::take(algo, &agent_dir(&path, checkpoint)?)?;
+        limit(first.as_mut(), memory)?;
         let (obs_dim, act_dim) = (env.observation_space().dim(), env.action_space().dim());
         // The agent must fit what the config says it saw: one probe action on zeros.
         let seen = (0..obs_dim).filter(|k| !train.hide_obs.contains(k)).count()
@@ -253,7 +272,7 @@ impl Policy {
         }
         first.begin_episode();
         let carried = first.state().len();
-        let scratch = Actor::load(algo, &agent.0, act_dim)?;
+        let scratch = Actor::load(algo, &agent.0, act_dim, memory)?;
         Ok(Self {
             obs_dim,
             act_low: env.action_space().low.clone(),
@@ -268,6 +287,7 @@ impl Policy {
             },
             batch: Vec::new(),
             scratch,
+            memory,
         })
     }
 
@@ -337,7 +357,7 @@ impl Policy {
             .ok_or_else(|| value_err(format!("act_batch: {n} environments is too many")))?;
         let all = f32s(obs, values, "observations")?;
         while self.batch.len() < n {
-            let a = Actor::load(self.algo, &self.agent.0, self.act_low.len())?;
+            let a = Actor::load(self.algo, &self.agent.0, self.act_low.len(), self.memory)?;
             self.batch.push(a);
         }
         let mut out = Vec::with_capacity(n * self.act_low.len());

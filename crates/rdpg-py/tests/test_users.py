@@ -214,6 +214,37 @@ def test_a_policy_pickles_as_its_directory(tmp_path):
         pickle.loads(data)
 
 
+def test_memory_probes_as_rdpg_eval_does(tmp_path):
+    # A recurrent agent limited to its last k observations: every acting form agrees, the
+    # returns are `rdpg eval --memory k`'s, and the limit survives pickling.
+    entry = _zoo("walker-rdpg")
+    policy = rdpg.Policy.load(entry, memory=2)
+    assert "memory=2" in repr(policy)
+    want = eval_returns(entry, "--episodes", "1", "--seed", str(TEST_SEED), "--memory", "2")
+    env = policy.make_env()
+    obs, _ = env.reset(seed=TEST_SEED)
+    policy.reset()
+    copy = pickle.loads(pickle.dumps(policy))
+    copy.reset()
+    ret, done, state = 0.0, False, None
+    while not done:
+        a = policy.act(obs)
+        np.testing.assert_array_equal(policy.act_batch(obs[None])[0], a)
+        np.testing.assert_array_equal(copy.act(obs), a)
+        action, state = policy.predict(obs, state)
+        np.testing.assert_array_equal(action, a)
+        obs, r, term, trunc, _ = env.step(a)
+        ret, done = ret + r, term or trunc
+    assert [ret] == want
+    assert want != eval_returns(entry, "--episodes", "1", "--seed", str(TEST_SEED))
+    with pytest.raises(ValueError, match="as trained"):
+        policy.to_torch()
+    with pytest.raises(ValueError, match="at least 1"):
+        rdpg.Policy.load(entry, memory=0)
+    with pytest.raises(ValueError, match="feed-forward"):
+        rdpg.Policy.load(_zoo("walker-td3"), memory=4)
+
+
 class _TestSeeds(gym.Wrapper):
     """Resets episode ``k`` with seed ``3000000 + k``, as ``rdpg eval`` does (SB3's vector
     env seeds only the first reset)."""

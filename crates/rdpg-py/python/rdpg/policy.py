@@ -28,13 +28,13 @@ def _extension():
     return _policy
 
 
-def _unpickle(path: str, checkpoint: str) -> "Policy":
+def _unpickle(path: str, checkpoint: str, memory: int | None = None) -> "Policy":
     if not Path(path).is_dir():
         raise FileNotFoundError(
             f"{path}: the directory of the pickled policy is gone (a Policy pickles as its "
             "directory and checkpoint, not its weights)"
         )
-    return Policy.load(path, checkpoint)
+    return Policy.load(path, checkpoint, memory=memory)
 
 
 class Policy:
@@ -42,8 +42,11 @@ class Policy:
     observations of its environment (a run trained with hidden observation components or its
     previous action as input builds that view itself).
 
-    ``Policy.load(path, checkpoint="best")``: a run's ``"best"``, ``"latest"``, ``"selected"``
-    (by ``rdpg select``) or a kept agent's step; a zoo entry has its one agent.
+    ``Policy.load(path, checkpoint="best", memory=None)``: a run's ``"best"``, ``"latest"``,
+    ``"selected"`` (by ``rdpg select``) or a kept agent's step; a zoo entry has its one agent.
+    ``memory=k`` probes a recurrent agent's memory as ``rdpg eval --memory k`` does: it acts
+    remembering at most its last ``k`` observations (its state re-encoded from zero over
+    them at every step).
 
     - ``make_env(**overrides)`` / ``make_vec(n)``: the env the policy was trained for (its id
       and action repeat; stock reward unless overridden). ``check_env(env)`` refuses an env
@@ -59,12 +62,14 @@ class Policy:
     ``make_env`` does that. A policy pickles as its directory and checkpoint.
     """
 
-    def __init__(self, inner: Any, path: Path, checkpoint: str):
+    def __init__(self, inner: Any, path: Path, checkpoint: str, memory: int | None = None):
         from . import _rdpg
 
         self._p = inner
         self.path = path
         self.checkpoint = checkpoint
+        #: The observations the policy remembers at most (``None``: its whole episode).
+        self.memory = memory
         self.env_id: str = inner.env_id
         self.algo: str = inner.algo
         self.action_repeat: int = inner.action_repeat
@@ -78,17 +83,26 @@ class Policy:
         self.state_len: int = inner.state_len
 
     @classmethod
-    def load(cls, path: str | Path, checkpoint: str | int = "best") -> "Policy":
+    def load(
+        cls, path: str | Path, checkpoint: str | int = "best", memory: int | None = None
+    ) -> "Policy":
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such run or zoo directory")
-        return cls(_extension().Policy(str(path), str(checkpoint)), path, str(checkpoint))
+        if memory is not None and (not isinstance(memory, int) or memory < 1):
+            raise ValueError(f"memory={memory!r}: an int, at least 1 (observations remembered)")
+        inner = _extension().Policy(str(path), str(checkpoint), memory)
+        return cls(inner, path, str(checkpoint), memory)
 
     def __reduce__(self):
-        return (_unpickle, (str(self.path.resolve()), self.checkpoint))
+        return (_unpickle, (str(self.path.resolve()), self.checkpoint, self.memory))
 
     def __repr__(self) -> str:
-        return f"Policy({str(self.path)!r}, checkpoint={self.checkpoint!r}: {self.algo} on {self.env_id})"
+        memory = "" if self.memory is None else f", memory={self.memory}"
+        return (
+            f"Policy({str(self.path)!r}, checkpoint={self.checkpoint!r}{memory}: "
+            f"{self.algo} on {self.env_id})"
+        )
 
     # --- the env it acts in -------------------------------------------------------------
 
@@ -217,8 +231,14 @@ class Policy:
     def to_torch(self):
         """The actor as a ``torch.nn.Module`` giving this policy's actions: ``forward(obs
         [n, obs_dim], state) -> (actions [n, act_dim], state)`` on full observations, with
-        ``initial_state(n)``; see ``rdpg._torch`` for each agent kind's state."""
+        ``initial_state(n)``; see ``rdpg._torch`` for each agent kind's state. The agent as
+        trained: a policy loaded with ``memory`` is refused."""
         from ._torch import to_torch
+
+        if self.memory is not None:
+            raise ValueError(
+                f"to_torch exports the agent as trained; load it without memory={self.memory}"
+            )
 
         return to_torch(
             Path(self._p.agent_dir),
