@@ -29,7 +29,7 @@ pub use cue::CueMemory;
 pub use pendulum::Pendulum;
 pub use registry::{make, make_with, EnvOptions, ENV_IDS};
 pub use vector::VecEnv;
-pub use wrappers::{ActionRepeat, FallPenalty, ObsMask, PrevAction, TimeLimit};
+pub use wrappers::{ActionRepeat, FallPenalty, FrameStack, ObsMask, PrevAction, TimeLimit};
 
 /// An environment that can draw its current state as a [`rdpg_render::Scene`].
 pub trait Renderable {

@@ -1,7 +1,7 @@
 //! Environment ids and the [`make`] factory (Gymnasium's `gym.make`).
 
 use crate::bipedal::{BipedalWalker, WalkerConfig, WalkerReward};
-use crate::wrappers::{ActionRepeat, FallPenalty, ObsMask, PrevAction, TimeLimit};
+use crate::wrappers::{ActionRepeat, FallPenalty, FrameStack, ObsMask, PrevAction, TimeLimit};
 use crate::{CueMemory, Pendulum, Renderable};
 use rdpg_core::{Env, EnvError};
 
@@ -43,9 +43,13 @@ pub struct EnvOptions {
     /// Each action is held for this many frames ([`ActionRepeat`]; 1: none). The time limit
     /// still counts frames.
     pub action_repeat: usize,
-    /// The previous action in front of the observation ([`PrevAction`]), outermost: the
+    /// The previous action in front of the observation ([`PrevAction`]), outside the action
+    /// repeat: the
     /// agent's previous action, whatever the action repeat.
     pub prev_action: bool,
+    /// The last this many observations side by side ([`FrameStack`]), outermost (each with
+    /// its previous action in front, with `prev_action`). 1: none.
+    pub frame_stack: usize,
 }
 
 impl Default for EnvOptions {
@@ -58,6 +62,7 @@ impl Default for EnvOptions {
             fall_penalty: None,
             action_repeat: 1,
             prev_action: false,
+            frame_stack: 1,
         }
     }
 }
@@ -70,7 +75,7 @@ pub fn make(id: &str) -> Result<Box<dyn AnyEnv>, EnvError> {
 }
 
 /// [`make`] with options. Wrapping order, inside out: the env, the observation mask, the time
-/// limit, the fall penalty, the action repeat, the previous action.
+/// limit, the fall penalty, the action repeat, the previous action, the frame stack.
 #[allow(
     clippy::expect_used,
     reason = "every registered env has a time limit (registry test)"
@@ -118,6 +123,9 @@ pub fn make_with(id: &str, opts: &EnvOptions) -> Result<Box<dyn AnyEnv>, EnvErro
     }
     if opts.prev_action {
         env = Box::new(PrevAction::new(env));
+    }
+    if opts.frame_stack != 1 {
+        env = Box::new(FrameStack::new(env, opts.frame_stack)?);
     }
     Ok(env)
 }

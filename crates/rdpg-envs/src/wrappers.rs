@@ -1,6 +1,7 @@
 //! Wrappers: the time limit (the only source of `truncated`), observation masks, the two
 //! training-time changes public Hardcore solutions rely on (a changed fall penalty and action
-//! repeat) and the previous action in the observation (an input recurrent agents commonly read).
+//! repeat), the previous action in the observation (an input recurrent agents commonly read)
+//! and a stack of the last observations (the feed-forward agent's memory).
 
 use crate::Renderable;
 use rdpg_core::{BoxSpace, Env, EnvError, EnvInfo, NpRng, Step};
@@ -33,7 +34,7 @@ macro_rules! renderable_via_inner {
         }
     )+};
 }
-renderable_via_inner!(TimeLimit, ObsMask, FallPenalty, ActionRepeat, PrevAction);
+renderable_via_inner!(TimeLimit, ObsMask, FallPenalty, ActionRepeat, PrevAction, FrameStack);
 
 /// Ends episodes after `max_steps` steps with `truncated = true` (Gymnasium's `TimeLimit`).
 /// `terminated` from the inner env passes through unchanged, so a step that both terminates
@@ -298,6 +299,64 @@ impl<E: Env> Env for PrevAction<E> {
     }
 }
 
+/// The last `k` observations of the inner env side by side, `[o_{t-k+1}, …, o_t]`, oldest
+/// first, zeros before the episode's first (Stable-Baselines3's `VecFrameStack`, DQN's frame
+/// stack): what a feed-forward agent remembers, where a recurrent one carries a state. The
+/// newest observation last, so that a lidar trunk still finds the lidar values at the end.
+pub struct FrameStack<E> {
+    inner: E,
+    k: usize,
+    space: BoxSpace,
+    /// The observation last returned (`k` inner observations).
+    stack: Vec<f32>,
+}
+
+impl<E: Env> FrameStack<E> {
+    /// Wraps `inner`; `k` must be at least 1 (1 changes nothing). The space's bounds are the
+    /// inner ones repeated `k` times.
+    pub fn new(inner: E, k: usize) -> Result<Self, EnvError> {
+        if k == 0 {
+            return Err(EnvError::Config("frame stack must be at least 1".into()));
+        }
+        let o = inner.observation_space();
+        let space = BoxSpace::new(o.low.repeat(k), o.high.repeat(k));
+        Ok(Self {
+            inner,
+            k,
+            space,
+            stack: Vec::new(),
+        })
+    }
+
+    /// Shifts `obs` in as the newest observation; `fresh`: the episode starts (zeros before).
+    fn push(&mut self, obs: &[f32], fresh: bool) -> Vec<f32> {
+        let d = obs.len();
+        if fresh || self.stack.len() != self.k * d {
+            self.stack = vec![0.0; self.k * d];
+        }
+        self.stack.copy_within(d.., 0);
+        let n = self.stack.len();
+        self.stack[n - d..].copy_from_slice(obs);
+        self.stack.clone()
+    }
+}
+
+impl<E: Env> Env for FrameStack<E> {
+    delegate!(id, action_space, max_episode_steps);
+    fn observation_space(&self) -> &BoxSpace {
+        &self.space
+    }
+    fn reset_with(&mut self, rng: Option<NpRng>) -> Result<(Vec<f32>, EnvInfo), EnvError> {
+        let (obs, info) = self.inner.reset_with(rng)?;
+        Ok((self.push(&obs, true), info))
+    }
+    fn step(&mut self, action: &[f32]) -> Result<Step, EnvError> {
+        let mut s = self.inner.step(action)?;
+        s.obs = self.push(&s.obs, false);
+        Ok(s)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -410,5 +469,30 @@ mod tests {
         }
         let (o, _) = env.reset(Some(4)).unwrap();
         assert_eq!(o[0], 0.0, "a reset clears the previous action");
+    }
+
+    #[test]
+    fn frame_stack_keeps_the_last_k_observations_oldest_first() {
+        let mut plain = Pendulum::new(false);
+        let mut env = FrameStack::new(Pendulum::new(false), 3).unwrap();
+        assert!(FrameStack::new(Pendulum::new(false), 0).is_err());
+        assert_eq!(env.observation_space().dim(), 9);
+        assert_eq!(env.observation_space().high[3..6], plain.observation_space().high[..]);
+        let (o, _) = env.reset(Some(3)).unwrap();
+        let (p0, _) = plain.reset(Some(3)).unwrap();
+        assert_eq!(o, [vec![0.0; 6], p0.clone()].concat());
+        let p1 = plain.step(&[0.5]).unwrap().obs;
+        assert_eq!(env.step(&[0.5]).unwrap().obs, [vec![0.0; 3], p0.clone(), p1.clone()].concat());
+        let p2 = plain.step(&[-1.0]).unwrap().obs;
+        assert_eq!(env.step(&[-1.0]).unwrap().obs, [p0, p1.clone(), p2.clone()].concat());
+        let p3 = plain.step(&[2.0]).unwrap();
+        let s3 = env.step(&[2.0]).unwrap();
+        assert_eq!(s3.obs, [p1, p2, p3.obs].concat());
+        assert_eq!(s3.reward, p3.reward);
+        let (o, _) = env.reset(Some(4)).unwrap();
+        let (p, _) = plain.reset(Some(4)).unwrap();
+        assert_eq!(o, [vec![0.0; 6], p].concat(), "a reset clears the stack");
+        let mut one = FrameStack::new(Pendulum::new(false), 1).unwrap();
+        assert_eq!(one.reset(Some(4)).unwrap().0, plain.reset(Some(4)).unwrap().0);
     }
 }

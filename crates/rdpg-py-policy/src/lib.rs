@@ -23,29 +23,56 @@ use rdpg_agents::common::to_env_action;
 use rdpg_agents::{Algo, DeterministicPolicy, TrainConfig};
 use rdpg_envs::EnvOptions;
 
-/// One acting copy of the agent: its recurrent state inside, and its previous action (zeros
-/// at an episode's start), put in front of the observation when the run trained with
-/// `prev_action_obs`.
+/// One acting copy of the agent: its recurrent state inside, its previous action (zeros at an
+/// episode's start), put in front of the observation when the run trained with
+/// `prev_action_obs`, and its last `frame_stack - 1` views (zeros before the episode's first),
+/// put before the current one when the run trained with a frame stack.
 struct Actor {
     policy: Box<dyn DeterministicPolicy>,
     prev: Vec<f32>,
+    /// The earlier views of the frame stack, oldest first (empty without one).
+    history: Vec<f32>,
 }
 
 impl Actor {
-    /// A fresh copy of the agent in `dir`, for actions of `act_dim` values, remembering at
-    /// most `memory` observations when given.
-    fn load(algo: Algo, dir: &Path, act_dim: usize, memory: Option<usize>) -> PyResult<Self> {
+    /// A fresh copy of the agent in `dir`, for actions of `act_dim` values with `history`
+    /// values of earlier views, remembering at most `memory` observations when given.
+    fn load(
+        algo: Algo,
+        dir: &Path,
+        act_dim: usize,
+        history: usize,
+        memory: Option<usize>,
+    ) -> PyResult<Self> {
         let mut policy = rdpg_agents::load_policy(algo, dir).map_err(value_err)?;
         limit(policy.as_mut(), memory)?;
-        Ok(Self {
+        Ok(Self::new(policy, act_dim, history))
+    }
+
+    fn new(policy: Box<dyn DeterministicPolicy>, act_dim: usize, history: usize) -> Self {
+        Self {
             policy,
             prev: vec![0.0; act_dim],
-        })
+            history: vec![0.0; history],
+        }
     }
 
     fn begin_episode(&mut self) {
         self.policy.begin_episode();
         self.prev.fill(0.0);
+        self.history.fill(0.0);
+    }
+
+    /// The state `act_states` passes around besides the agent's own: the previous action
+    /// (with `prev_action_obs`), then the earlier views.
+    fn view_state(&self, train: &TrainConfig) -> Vec<f32> {
+        let mut out = if train.prev_action_obs {
+            self.prev.clone()
+        } else {
+            Vec::new()
+        };
+        out.extend_from_slice(&self.history);
+        out
     }
 }
 
@@ -92,8 +119,9 @@ pub struct Policy {
 }
 
 impl Policy {
-    /// `actor`'s action for a full observation of the env: the run's observation mask and
-    /// previous-action input applied as in training; remembers the action.
+    /// `actor`'s action for a full observation of the env: the run's observation mask,
+    /// previous-action input and frame stack applied as in training; remembers the action and
+    /// the view.
     fn act_one(
         train: &TrainConfig,
         low: &[f32],
@@ -112,21 +140,32 @@ impl Policy {
                 .filter(|(k, _)| !train.hide_obs.contains(k))
                 .map(|(_, &x)| x),
         );
-        let a = actor.policy.act(&view).map_err(value_err)?;
+        let a = if actor.history.is_empty() {
+            actor.policy.act(&view)
+        } else {
+            let stacked = [actor.history.as_slice(), &view].concat();
+            let d = view.len();
+            actor.history.copy_within(d.., 0);
+            let n = actor.history.len();
+            actor.history[n - d..].copy_from_slice(&view);
+            actor.policy.act(&stacked)
+        }
+        .map_err(value_err)?;
         let a = to_env_action(&a, low, high);
         actor.prev.clone_from(&a);
         Ok(a)
     }
 
     /// Values of one environment's state in `act_states`: the previous action (with
-    /// `prev_action_obs`), then the agent's own carried state.
+    /// `prev_action_obs`), the earlier views of the frame stack, then the agent's own carried
+    /// state.
     fn state_len(&self) -> usize {
         let prev = if self.train.prev_action_obs {
             self.act_low.len()
         } else {
             0
         };
-        prev + self.carried
+        prev + self.single.history.len() + self.carried
     }
 }
 
@@ -255,8 +294,10 @@ impl Policy {
         limit(first.as_mut(), memory)?;
         let (obs_dim, act_dim) = (env.observation_space().dim(), env.action_space().dim());
         // The agent must fit what the config says it saw: one probe action on zeros.
-        let seen = (0..obs_dim).filter(|k| !train.hide_obs.contains(k)).count()
+        let view = (0..obs_dim).filter(|k| !train.hide_obs.contains(k)).count()
             + if train.prev_action_obs { act_dim } else { 0 };
+        let seen = view * train.frame_stack;
+        let history = seen - view;
         let probe = first.act(&vec![0.0; seen]).map_err(|e| {
             bad(&format!(
                 "the agent does not fit {} as configured ({seen} inputs): {e}",
@@ -272,7 +313,7 @@ impl Policy {
         }
         first.begin_episode();
         let carried = first.state().len();
-        let scratch = Actor::load(algo, &agent.0, act_dim, memory)?;
+        let scratch = Actor::load(algo, &agent.0, act_dim, history, memory)?;
         Ok(Self {
             obs_dim,
             act_low: env.action_space().low.clone(),
@@ -281,10 +322,7 @@ impl Policy {
             algo,
             train,
             carried,
-            single: Actor {
-                policy: first,
-                prev: vec![0.0; act_dim],
-            },
+            single: Actor::new(first, act_dim, history),
             batch: Vec::new(),
             scratch,
             memory,
@@ -357,7 +395,13 @@ impl Policy {
             .ok_or_else(|| value_err(format!("act_batch: {n} environments is too many")))?;
         let all = f32s(obs, values, "observations")?;
         while self.batch.len() < n {
-            let a = Actor::load(self.algo, &self.agent.0, self.act_low.len(), self.memory)?;
+            let a = Actor::load(
+                self.algo,
+                &self.agent.0,
+                self.act_low.len(),
+                self.single.history.len(),
+                self.memory,
+            )?;
             self.batch.push(a);
         }
         let mut out = Vec::with_capacity(n * self.act_low.len());
@@ -415,13 +459,18 @@ impl Policy {
                 starts.len()
             )));
         }
-        let prev = width - self.carried;
+        let prev = if self.train.prev_action_obs {
+            self.act_low.len()
+        } else {
+            0
+        };
+        let views = width - self.carried;
         let (mut actions, mut out) = (Vec::with_capacity(n * self.act_low.len()), Vec::new());
         for (i, row) in all.chunks_exact(self.obs_dim).enumerate() {
             match &states {
                 Some(s) if !starts[i] => {
                     let st = &s[i * width..(i + 1) * width];
-                    if let Some(k) = st[..prev].iter().position(|x| !x.is_finite()) {
+                    if let Some(k) = st[..views].iter().position(|x| !x.is_finite()) {
                         return Err(value_err(format!(
                             "state of environment {i}: value {k} is {}",
                             st[k]
@@ -430,9 +479,10 @@ impl Policy {
                     if prev > 0 {
                         self.scratch.prev.copy_from_slice(&st[..prev]);
                     }
+                    self.scratch.history.copy_from_slice(&st[prev..views]);
                     self.scratch
                         .policy
-                        .set_state(&st[prev..])
+                        .set_state(&st[views..])
                         .map_err(|e| value_err(format!("state of environment {i}: {e}")))?;
                 }
                 _ => self.scratch.begin_episode(),
@@ -444,9 +494,7 @@ impl Policy {
                 &mut self.scratch,
                 row,
             )?);
-            if prev > 0 {
-                out.extend_from_slice(&self.scratch.prev);
-            }
+            out.extend(self.scratch.view_state(&self.train));
             out.extend(self.scratch.policy.state());
         }
         Ok((f32_bytes(py, &actions), f32_bytes(py, &out)))

@@ -64,6 +64,7 @@ fn options(
         fall_penalty,
         action_repeat,
         prev_action: false,
+        frame_stack: 1,
     })
 }
 

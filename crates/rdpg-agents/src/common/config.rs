@@ -58,6 +58,11 @@ pub struct TrainConfig {
     /// (R2D2; Ni et al. 2022). Part of the agent's view, so evaluation, rendering and
     /// recording use it too; the Python `Policy` adds it itself.
     pub prev_action_obs: bool,
+    /// The agent sees its last this many views side by side, oldest first, zeros before the
+    /// episode's first (a frame stack, as Stable-Baselines3's `VecFrameStack`): memory for a
+    /// feed-forward agent, the control for what a recurrent one remembers. Part of the agent's
+    /// view, like `prev_action_obs` (each view with its previous action in front). 1: none.
+    pub frame_stack: usize,
     /// Budget in environment steps (over all environments).
     pub total_steps: u64,
     /// Environments acting in parallel.
@@ -90,6 +95,7 @@ impl Default for TrainConfig {
             fall_penalty: None,
             action_repeat: 1,
             prev_action_obs: false,
+            frame_stack: 1,
             total_steps: 50_000,
             num_envs: 1,
             workers: 1,
@@ -141,6 +147,7 @@ impl TrainConfig {
             }
         };
         within("train.action_repeat", self.action_repeat, 1000)?;
+        within("train.frame_stack", self.frame_stack, 64)?;
         if self.total_steps == 0 {
             return bad("train.total_steps", "must be positive".into());
         }
@@ -187,12 +194,13 @@ impl TrainConfig {
             fall_penalty: self.fall_penalty,
             action_repeat: self.action_repeat,
             prev_action: self.prev_action_obs,
+            frame_stack: self.frame_stack,
         }
     }
 
     /// The options of evaluation, rendering and recording: the stock reward, with the run's
-    /// observation mask, previous-action input and action repeat (the agent's view and time
-    /// scale).
+    /// observation mask, previous-action input, frame stack and action repeat (the agent's view
+    /// and time scale).
     pub fn eval_env_options(&self) -> EnvOptions {
         EnvOptions {
             reward: WalkerReward::Stock,
@@ -260,6 +268,17 @@ mod tests {
                 ..c.clone()
             }),
             "train.fall_penalty"
+        );
+        assert_eq!(
+            field(&TrainConfig {
+                frame_stack: 0,
+                ..c.clone()
+            }),
+            "train.frame_stack"
+        );
+        assert_eq!(
+            (c.frame_stack, e.frame_stack, c.eval_env_options().frame_stack),
+            (1, 1, 1)
         );
         assert_eq!(
             field(&TrainConfig {

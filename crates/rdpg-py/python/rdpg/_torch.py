@@ -422,9 +422,9 @@ def to_torch(
     parameters frozen (``requires_grad_()`` to train it further).
 
     ``config`` is the run's parsed ``config.toml`` (its ``algo`` and the ``[train]`` settings
-    ``hide_obs`` and ``prev_action_obs`` are read); the bounds are those of the full
-    environment's spaces (the observation bounds give its size). See the module docs for the
-    state layouts. An algorithm, agent format or setting this reader does not know, or files
+    ``hide_obs`` and ``prev_action_obs`` are read; a ``frame_stack`` above 1 is refused); the
+    bounds are those of the full environment's spaces (the observation bounds give its size).
+    See the module docs for the state layouts. An algorithm, agent format or setting this reader does not know, or files
     that do not fit each other, is a ``ValueError`` naming the file (and tensor).
     """
     algo = config.get("algo")
@@ -446,6 +446,11 @@ def to_torch(
     hide = sorted(set(train.get("hide_obs", [])))
     if any(not 0 <= i < obs_dim for i in hide):
         raise ValueError(f"config.toml: train.hide_obs {hide} not all in 0..{obs_dim - 1}")
+    if train.get("frame_stack", 1) != 1:
+        raise ValueError(
+            f"config.toml: train.frame_stack = {train['frame_stack']}: a frame-stacked agent is "
+            "not exported (act with rdpg.Policy, which stacks its views itself)"
+        )
     prev_action_obs = bool(train.get("prev_action_obs", False))
     view_dim = obs_dim - len(hide) + (act_dim if prev_action_obs else 0)
     if (meta["obs_dim"], meta["act_dim"]) != (view_dim, act_dim):
