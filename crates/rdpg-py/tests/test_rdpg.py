@@ -211,6 +211,18 @@ def prev_action_run(tmp_path_factory) -> Path:
     )
 
 
+@pytest.fixture(scope="module")
+def stacked_run(tmp_path_factory) -> Path:
+    """A tiny feed-forward run on PendulumNoVel-v1 that sees its last 3 views, each with its
+    previous action in front (`train.frame_stack`, `train.prev_action_obs`)."""
+    return train(
+        "memory-ddpg.toml", tmp_path_factory.mktemp("runs") / "stacked", "--steps", "1200",
+        "--set", "train.frame_stack=3", "--set", "train.prev_action_obs=true",
+        "--set", "off_policy.warmup_steps=600", "--set", "train.eval_every=600",
+        "--set", "train.eval_episodes=2", "--set", "train.test_episodes=2",
+    )
+
+
 def _policy_dirs(*runs: Path) -> list[Path]:
     zoo = ROOT / "zoo"
     entries = sorted(p for p in zoo.iterdir() if (p / "agent").is_dir()) if zoo.is_dir() else []
@@ -218,9 +230,9 @@ def _policy_dirs(*runs: Path) -> list[Path]:
 
 
 def test_a_policy_in_a_plain_gymnasium_loop_scores_what_rdpg_eval_reports(
-    trained_run, prev_action_run
+    trained_run, prev_action_run, stacked_run
 ):
-    for run in _policy_dirs(trained_run, prev_action_run):
+    for run in _policy_dirs(trained_run, prev_action_run, stacked_run):
         policy = rdpg.Policy.load(run)
         episodes, seed = 3, 3_000_000
         want = eval_returns(run, "--episodes", str(episodes), "--seed", str(seed))
@@ -282,6 +294,29 @@ def test_predict_carries_the_previous_action_input_in_its_state(prev_action_run)
         assert np.array_equal(a, policy.act(obs))
         assert np.array_equal(state[0, : a.size], a)
         obs, *_ = env.step(a)
+
+
+def test_a_frame_stacked_policy_carries_its_earlier_views(stacked_run):
+    # predict's state: the previous action, then the 2 earlier views ([prev action, cos, sin]
+    # each), oldest first, zeros before the episode's first; threaded, it equals act, and the
+    # batched form keeps one stack per environment.
+    policy = rdpg.Policy.load(stacked_run)
+    assert policy.state_len == 1 + 2 * 3
+    env = policy.make_env()
+    obs, _ = env.reset(seed=9)
+    policy.reset()
+    state, views, last = None, [], 0.0
+    for _ in range(20):
+        a, state = policy.predict(obs, state)
+        assert np.array_equal(a, policy.act(obs))
+        assert np.array_equal(policy.act_batch(np.stack([obs, obs]))[1], a)
+        views.append(np.array([last, *obs], np.float32))
+        last = a[0]
+        earlier = ([np.zeros(3, np.float32)] * 2 + views)[-2:]
+        np.testing.assert_array_equal(state[0], np.concatenate([a, *earlier]))
+        obs, *_ = env.step(a)
+    with pytest.raises(ValueError, match="frame_stack"):
+        policy.to_torch()
 
 
 def test_a_damaged_policy_directory_is_refused(trained_run, tmp_path):
