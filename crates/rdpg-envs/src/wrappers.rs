@@ -34,7 +34,14 @@ macro_rules! renderable_via_inner {
         }
     )+};
 }
-renderable_via_inner!(TimeLimit, ObsMask, FallPenalty, ActionRepeat, PrevAction, FrameStack);
+renderable_via_inner!(
+    TimeLimit,
+    ObsMask,
+    FallPenalty,
+    ActionRepeat,
+    PrevAction,
+    FrameStack
+);
 
 /// Ends episodes after `max_steps` steps with `truncated = true` (Gymnasium's `TimeLimit`).
 /// `terminated` from the inner env passes through unchanged, so a step that both terminates
@@ -477,14 +484,23 @@ mod tests {
         let mut env = FrameStack::new(Pendulum::new(false), 3).unwrap();
         assert!(FrameStack::new(Pendulum::new(false), 0).is_err());
         assert_eq!(env.observation_space().dim(), 9);
-        assert_eq!(env.observation_space().high[3..6], plain.observation_space().high[..]);
+        assert_eq!(
+            env.observation_space().high[3..6],
+            plain.observation_space().high[..]
+        );
         let (o, _) = env.reset(Some(3)).unwrap();
         let (p0, _) = plain.reset(Some(3)).unwrap();
         assert_eq!(o, [vec![0.0; 6], p0.clone()].concat());
         let p1 = plain.step(&[0.5]).unwrap().obs;
-        assert_eq!(env.step(&[0.5]).unwrap().obs, [vec![0.0; 3], p0.clone(), p1.clone()].concat());
+        assert_eq!(
+            env.step(&[0.5]).unwrap().obs,
+            [vec![0.0; 3], p0.clone(), p1.clone()].concat()
+        );
         let p2 = plain.step(&[-1.0]).unwrap().obs;
-        assert_eq!(env.step(&[-1.0]).unwrap().obs, [p0, p1.clone(), p2.clone()].concat());
+        assert_eq!(
+            env.step(&[-1.0]).unwrap().obs,
+            [p0, p1.clone(), p2.clone()].concat()
+        );
         let p3 = plain.step(&[2.0]).unwrap();
         let s3 = env.step(&[2.0]).unwrap();
         assert_eq!(s3.obs, [p1, p2, p3.obs].concat());
@@ -493,6 +509,9 @@ mod tests {
         let (p, _) = plain.reset(Some(4)).unwrap();
         assert_eq!(o, [vec![0.0; 6], p].concat(), "a reset clears the stack");
         let mut one = FrameStack::new(Pendulum::new(false), 1).unwrap();
-        assert_eq!(one.reset(Some(4)).unwrap().0, plain.reset(Some(4)).unwrap().0);
+        assert_eq!(
+            one.reset(Some(4)).unwrap().0,
+            plain.reset(Some(4)).unwrap().0
+        );
     }
 }

@@ -276,10 +276,12 @@ mod tests {
             }),
             "train.frame_stack"
         );
-        assert_eq!(
-            (c.frame_stack, e.frame_stack, c.eval_env_options().frame_stack),
-            (1, 1, 1)
-        );
+        let stacked = TrainConfig {
+            frame_stack: 4,
+            ..c.clone()
+        };
+        stacked.validate().unwrap();
+        assert_eq!(stacked.eval_env_options().frame_stack, 4);
         assert_eq!(
             field(&TrainConfig {
                 action_repeat: 0,
