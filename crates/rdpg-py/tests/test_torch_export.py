@@ -6,7 +6,7 @@ give the same actions. The agents: every zoo entry (LSTM RDPG, TD3, TD3-FORK), a
 RDPG agent trained on the cue task here, and small agents with random weights written here for
 what no shipped agent uses: the paper's lidar trunk, hidden observation components, the
 previous action as input, a window agent reading it, head layers after the core with the skip
-connection around it (LSTM and feed-forward), and PPO.
+connection around it (LSTM and feed-forward), PPO, and frame-stacked feed-forward agents.
 """
 
 from __future__ import annotations
@@ -73,6 +73,12 @@ SYNTHETIC = {
          "sac": {"tqc": {"quantiles": 5, "drop_per_critic": 1}}},
     ),
     "ppo": ("ppo", {"hide_obs": [2, 3], "prev_action_obs": True}, {"hidden": [32, 16]}),
+    "lidar-ddpg-stack": (
+        "ddpg",
+        {"prev_action_obs": True, "frame_stack": 3},
+        {"recurrent": False, "scan_len": 0, "opt_len": 1, "update_len": 1},
+    ),
+    "ppo-stack": ("ppo", {"hide_obs": [2], "frame_stack": 2}, {"hidden": [32, 16]}),
 }
 
 #: The small lidar networks of the synthetic RDPG/DDPG agents.
@@ -174,6 +180,7 @@ def _synthetic_entry(root: Path, name: str) -> Path:
     env = rdpg.RdpgEnv("BipedalWalker-v3")
     obs_dim, act_dim = env.observation_space.shape[0], env.action_space.shape[0]
     obs_dim += act_dim * train.get("prev_action_obs", False) - len(train.get("hide_obs", []))
+    obs_dim *= train.get("frame_stack", 1)
     if algo == "ppo":
         config = {**agent, "device": "cpu", "num_threads": 1}
         shapes = _ppo_shapes(agent["hidden"], obs_dim, act_dim)
@@ -394,3 +401,16 @@ def test_agents_it_cannot_build_are_value_errors_naming_the_file(tmp_path):
     _seal(agent)
     with pytest.raises(ValueError, match="weights.safetensors: no tensor 'actor.head.bias'"):
         to_torch(agent, config, *bounds)
+
+
+def test_a_recurrent_agent_with_a_frame_stack_is_refused_by_name(tmp_path, monkeypatch):
+    monkeypatch.setitem(SYNTHETIC, "lstm-stack", ("rdpg", {"frame_stack": 2}, {}))
+    entry = _synthetic_entry(tmp_path, "lstm-stack")
+    config = tomllib.loads((entry / "config.toml").read_text())
+    env = rdpg.RdpgEnv("BipedalWalker-v3")
+    bounds = (env.observation_space.low, env.observation_space.high,
+              env.action_space.low, env.action_space.high)
+    with pytest.raises(ValueError, match="frame_stack = 2 on a recurrent agent"):
+        to_torch(entry / "agent", config, *bounds)
+    with pytest.raises(ValueError, match="frame_stack 0"):
+        to_torch(entry / "agent", {**config, "train": {"frame_stack": 0}}, *bounds)

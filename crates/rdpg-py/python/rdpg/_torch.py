@@ -5,7 +5,8 @@ the same order on the same float32 weights, so its actions equal the Rust ones (
 1e-6; in practice bit for bit). It takes *full* observations of the agent's environment and
 does inside what ``Policy.act`` does around the agent: drops the run's hidden observation
 components (``train.hide_obs``), puts the previous action in front of the observation when the
-run trained with ``train.prev_action_obs``, and maps the agent's ``[-1, 1]`` action to the
+run trained with ``train.prev_action_obs``, stacks the last views with ``train.frame_stack``,
+and maps the agent's ``[-1, 1]`` action to the
 environment's bounds (clipping first).
 
 The recurrent state is explicit::
@@ -20,6 +21,9 @@ trained with it). Every layout starts with the previous action:
 
 * feed-forward agents (DDPG, TD3, TD3-FORK, PPO), :class:`FeedForwardPolicy`:
   ``(prev_action [n, act_dim],)``;
+* feed-forward agents trained with a frame stack (``train.frame_stack = k``),
+  :class:`StackedFeedForwardPolicy`: ``(prev_action, history [n, k - 1, D])``, the agent's
+  last ``k - 1`` views, oldest first, zeros before the episode's first;
 * recurrent RDPG agents, :class:`LstmPolicy`: ``(prev_action, h [n, H], c [n, H])``, the
   actor LSTM's hidden and cell state;
 * window-of-k RDPG agents (``agent.act_window = k``), :class:`WindowPolicy`:
@@ -51,7 +55,13 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-__all__ = ["to_torch", "FeedForwardPolicy", "LstmPolicy", "WindowPolicy"]
+__all__ = [
+    "to_torch",
+    "FeedForwardPolicy",
+    "StackedFeedForwardPolicy",
+    "LstmPolicy",
+    "WindowPolicy",
+]
 
 #: The agent formats (``agent.json``'s ``format``) this reader knows.
 _FORMATS = (1, 2)
@@ -76,6 +86,7 @@ _RDPG_DEFAULTS: Dict[str, Any] = {
 _PPO_DEFAULT_HIDDEN = [64, 64]
 
 #: The state of :class:`LstmPolicy` and :class:`WindowPolicy`.
+_State2 = Tuple[Tensor, Tensor]
 _State3 = Tuple[Tensor, Tensor, Tensor]
 
 
@@ -298,6 +309,33 @@ class FeedForwardPolicy(_Policy):
         return (self._no_action(n),)
 
 
+class StackedFeedForwardPolicy(_Policy):
+    """A feed-forward agent trained with a frame stack of ``k``: it acts on its last ``k``
+    views side by side, oldest first (``rdpg_envs::FrameStack``).
+    State: ``(prev_action [n, act_dim], history [n, k - 1, D])``."""
+
+    state_names = ("prev_action", "history")
+
+    def __init__(self, net: nn.Module, k: int, view_dim: int, **base: Any):
+        super().__init__(**base)
+        self.net = net
+        self.k = k
+        self.view_dim = view_dim
+
+    def forward(self, obs: Tensor, state: _State2) -> Tuple[Tensor, _State2]:
+        prev, history = state
+        view = self._view(obs, prev)
+        n = view.shape[0]
+        stacked = torch.cat([history.reshape(n, (self.k - 1) * self.view_dim), view], 1)
+        a = self._env_action(self.net(stacked))
+        return a, (a, torch.cat([history[:, 1:], view.unsqueeze(1)], 1))
+
+    @torch.jit.export
+    def initial_state(self, n: int) -> _State2:
+        """The state of ``n`` environments at an episode start."""
+        return (self._no_action(n), self.act_low.new_zeros((n, self.k - 1, self.view_dim)))
+
+
 class LstmPolicy(_Policy):
     """A recurrent RDPG agent: trunk, LSTM (its state carried over the episode), FC + tanh.
     State: ``(prev_action [n, act_dim], h [n, H], c [n, H])``."""
@@ -383,12 +421,25 @@ def _read(agent_dir: Path, name: str) -> bytes:
     return data
 
 
+def _feed_forward(net: nn.Module, stack: int, view_dim: int, base: Dict[str, Any]) -> _Policy:
+    """A feed-forward actor ``net`` on ``stack`` views of ``view_dim`` values."""
+    if stack == 1:
+        return FeedForwardPolicy(net, **base)
+    return StackedFeedForwardPolicy(net, stack, view_dim, **base)
+
+
 def _rdpg_actor(
-    w: _Weights, cfg: Dict[str, Any], view_dim: int, act_dim: int, base: Dict[str, Any]
+    w: _Weights,
+    cfg: Dict[str, Any],
+    view_dim: int,
+    stack: int,
+    act_dim: int,
+    base: Dict[str, Any],
 ) -> _Policy:
-    """The actor of an RDPG/DDPG/SAC agent (``actor.*``) as the module of its kind."""
+    """The actor of an RDPG/DDPG/SAC agent (``actor.*``) as the module of its kind, on
+    ``stack`` views of ``view_dim`` values."""
     hidden = cfg["actor_hidden"]
-    trunk, embed = _trunk(w, cfg, view_dim)
+    trunk, embed = _trunk(w, cfg, stack * view_dim)
     core = _Lstm(w, embed, hidden) if cfg["recurrent"] else w.linear("actor.core.fc", embed, hidden)
     layers: List[nn.Module] = []
     width = hidden + (embed if cfg["core_skip"] else 0)
@@ -403,7 +454,12 @@ def _rdpg_actor(
         layers += [w.linear("actor.head", width, 2 * act_dim), _Mean(act_dim), nn.Tanh()]
     head = _Head(bool(cfg["core_skip"]), nn.Sequential(*layers))
     if not cfg["recurrent"]:
-        return FeedForwardPolicy(_FeedForwardActor(trunk, core, head), **base)
+        return _feed_forward(_FeedForwardActor(trunk, core, head), stack, view_dim, base)
+    if stack != 1:
+        raise ValueError(
+            f"config.toml: train.frame_stack = {stack} on a recurrent agent: not exported (act "
+            "with rdpg.Policy, which stacks its views itself)"
+        )
     if cfg["act_window"]:
         return WindowPolicy(trunk, core, head, cfg["act_window"], view_dim, **base)
     return LstmPolicy(trunk, core, head, **base)
@@ -422,10 +478,11 @@ def to_torch(
     parameters frozen (``requires_grad_()`` to train it further).
 
     ``config`` is the run's parsed ``config.toml`` (its ``algo`` and the ``[train]`` settings
-    ``hide_obs`` and ``prev_action_obs`` are read; a ``frame_stack`` above 1 is refused); the
-    bounds are those of the full environment's spaces (the observation bounds give its size).
-    See the module docs for the state layouts. An algorithm, agent format or setting this reader does not know, or files
-    that do not fit each other, is a ``ValueError`` naming the file (and tensor).
+    ``hide_obs``, ``prev_action_obs`` and ``frame_stack`` are read; a recurrent agent with a
+    frame stack is refused); the bounds are those of the full environment's spaces (the
+    observation bounds give its size). See the module docs for the state layouts. An
+    algorithm, agent format or setting this reader does not know, or files that do not fit
+    each other, is a ``ValueError`` naming the file (and tensor).
     """
     algo = config.get("algo")
     if algo not in ("rdpg", "ddpg", "sac", "ppo"):
@@ -446,17 +503,15 @@ def to_torch(
     hide = sorted(set(train.get("hide_obs", [])))
     if any(not 0 <= i < obs_dim for i in hide):
         raise ValueError(f"config.toml: train.hide_obs {hide} not all in 0..{obs_dim - 1}")
-    if train.get("frame_stack", 1) != 1:
-        raise ValueError(
-            f"config.toml: train.frame_stack = {train['frame_stack']}: a frame-stacked agent is "
-            "not exported (act with rdpg.Policy, which stacks its views itself)"
-        )
+    stack = train.get("frame_stack", 1)
+    if not isinstance(stack, int) or stack < 1:
+        raise ValueError(f"config.toml: train.frame_stack {stack!r}, expected an int >= 1")
     prev_action_obs = bool(train.get("prev_action_obs", False))
     view_dim = obs_dim - len(hide) + (act_dim if prev_action_obs else 0)
-    if (meta["obs_dim"], meta["act_dim"]) != (view_dim, act_dim):
+    if (meta["obs_dim"], meta["act_dim"]) != (stack * view_dim, act_dim):
         raise ValueError(
             f"{meta_path}: obs_dim {meta['obs_dim']}, act_dim {meta['act_dim']}; the environment "
-            f"as configured gives the agent {view_dim} inputs and takes {act_dim} actions"
+            f"as configured gives the agent {stack * view_dim} inputs and takes {act_dim} actions"
         )
     base = dict(
         keep=torch.tensor([i for i in range(obs_dim) if i not in hide], dtype=torch.long),
@@ -466,8 +521,9 @@ def to_torch(
     )
     if algo == "ppo":
         hidden = list(meta["config"].get("hidden", _PPO_DEFAULT_HIDDEN))
-        mean = _mlp(w, "policy", "l", view_dim, hidden, nn.Tanh(), act_dim)
-        policy: _Policy = FeedForwardPolicy(mean, **base)
+        mean = _mlp(w, "policy", "l", stack * view_dim, hidden, nn.Tanh(), act_dim)
+        policy: _Policy = _feed_forward(mean, stack, view_dim, base)
     else:
-        policy = _rdpg_actor(w, {**_RDPG_DEFAULTS, **meta["config"]}, view_dim, act_dim, base)
+        cfg = {**_RDPG_DEFAULTS, **meta["config"]}
+        policy = _rdpg_actor(w, cfg, view_dim, stack, act_dim, base)
     return policy.eval().requires_grad_(False)
