@@ -606,9 +606,9 @@ fn final_observations_and_truncation_reach_the_replay() {
 }
 
 /// Teacher files hold seeds and actions: a student replays them through its own env options
-/// (another reward, a fall penalty, the previous action in front of its observation) and gets
-/// its own view of the same episodes, checked against the recorded stock return; what cannot
-/// be rebuilt, and a changed, damaged or old file, is refused saying why.
+/// (another reward, a fall penalty, the previous action in front of its observation, a frame
+/// stack) and gets its own view of the same episodes, checked against the recorded stock
+/// return; what cannot be rebuilt, and a changed, damaged or old file, is refused saying why.
 #[test]
 fn teacher_episodes_replay_in_the_students_own_view() {
     use rdpg_agents::common::to_env_action;
@@ -691,6 +691,27 @@ fn teacher_episodes_replay_in_the_students_own_view() {
         falls > 0,
         "no teacher episode fell: the fall penalty went unchecked"
     );
+    // A student that sees its last 2 observations: each step's view is the one before and
+    // its own, zeros before the episode's first.
+    let stacked = TrainConfig {
+        frame_stack: 2,
+        ..teacher_cfg.clone()
+    };
+    for (s, o) in t.episodes_for(&stacked, &path).unwrap().iter().zip(&own) {
+        assert_eq!((s.len(), &s.rewards), (o.len(), &o.rewards));
+        for k in 0..=s.len() {
+            let before = if k == 0 {
+                vec![0.0; 24]
+            } else {
+                o.obs[(k - 1) * 24..k * 24].to_vec()
+            };
+            assert_eq!(s.obs[k * 48..k * 48 + 24], before[..], "step {k}");
+            assert_eq!(
+                s.obs[k * 48 + 24..(k + 1) * 48],
+                o.obs[k * 24..(k + 1) * 24]
+            );
+        }
+    }
 
     // Another action repeat or env cannot be rebuilt: refused, naming both sides.
     let repeat3 = TrainConfig {
