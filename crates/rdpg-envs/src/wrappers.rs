@@ -341,11 +341,18 @@ impl<E: Env> FrameStack<E> {
         if fresh || self.stack.len() != self.k * d {
             self.stack = vec![0.0; self.k * d];
         }
-        self.stack.copy_within(d.., 0);
-        let n = self.stack.len();
-        self.stack[n - d..].copy_from_slice(obs);
+        push_view(&mut self.stack, obs);
         self.stack.clone()
     }
+}
+
+/// Shifts `view` into `stack` (views of `view.len()` values side by side, oldest first) as the
+/// newest, dropping the oldest: [`FrameStack`]'s step, for code that stacks views itself (the
+/// Python `Policy`).
+pub fn push_view(stack: &mut [f32], view: &[f32]) {
+    let (n, d) = (stack.len(), view.len());
+    stack.copy_within(d.., 0);
+    stack[n - d..].copy_from_slice(view);
 }
 
 impl<E: Env> Env for FrameStack<E> {

@@ -144,10 +144,7 @@ impl Policy {
             actor.policy.act(&view)
         } else {
             let stacked = [actor.history.as_slice(), &view].concat();
-            let d = view.len();
-            actor.history.copy_within(d.., 0);
-            let n = actor.history.len();
-            actor.history[n - d..].copy_from_slice(&view);
+            rdpg_envs::wrappers::push_view(&mut actor.history, &view);
             actor.policy.act(&stacked)
         }
         .map_err(value_err)?;
