@@ -29,7 +29,11 @@ trained with it). Every layout starts with the previous action:
 * window-of-k RDPG agents (``agent.act_window = k``), :class:`WindowPolicy`:
   ``(prev_action, history [n, k - 1, D], count [n])``: the agent's last ``k - 1`` views,
   oldest first, left-padded with zeros, and how many of them are real (0 to ``k - 1``, as
-  float32).
+  float32);
+* recurrent agents trained with a frame stack of ``s`` (the LSTM or the window reads
+  stacked views of ``s * D`` values), :class:`StackedLstmPolicy`: ``(prev_action, stack
+  [n, s - 1, D], h, c)`` and :class:`StackedWindowPolicy`: ``(prev_action, stack, history
+  [n, k - 1, s * D], count)``, ``stack`` the last ``s - 1`` views as above.
 
 ``prev_action`` is the previous action in the environment's bounds (zeros at an episode
 start); it enters the network only with ``train.prev_action_obs``. To start an episode for
@@ -61,6 +65,8 @@ __all__ = [
     "StackedFeedForwardPolicy",
     "LstmPolicy",
     "WindowPolicy",
+    "StackedLstmPolicy",
+    "StackedWindowPolicy",
 ]
 
 #: The agent formats (``agent.json``'s ``format``) this reader knows.
@@ -85,9 +91,10 @@ _RDPG_DEFAULTS: Dict[str, Any] = {
 #: ``PpoConfig::default()``'s hidden widths.
 _PPO_DEFAULT_HIDDEN = [64, 64]
 
-#: The state of :class:`LstmPolicy` and :class:`WindowPolicy`.
+#: The policies' states (see the module docs).
 _State2 = Tuple[Tensor, Tensor]
 _State3 = Tuple[Tensor, Tensor, Tensor]
+_State4 = Tuple[Tensor, Tensor, Tensor, Tensor]
 
 
 class _Weights:
@@ -287,6 +294,18 @@ class _Policy(nn.Module):
         """``prev_action`` at an episode start: zeros ``[n, act_dim]``."""
         return self.act_low.new_zeros((n, self.act_low.shape[0]))
 
+    def _no_views(self, n: int, k: int, d: int) -> Tensor:
+        """``k`` views of ``d`` values before an episode's first: zeros ``[n, k, d]``."""
+        return self.act_low.new_zeros((n, k, d))
+
+
+def _stacked(view: Tensor, stack: Tensor) -> _State2:
+    """A frame stack's step (``rdpg_envs::FrameStack``): the agent's input ``[n, s * D]``,
+    the earlier views ``stack [n, s - 1, D]`` then ``view [n, D]``, and the stack after it."""
+    n = view.shape[0]
+    stacked = torch.cat([stack.reshape(n, -1), view], 1)
+    return stacked, torch.cat([stack[:, 1:], view.unsqueeze(1)], 1)
+
 
 class FeedForwardPolicy(_Policy):
     """A feed-forward agent: DDPG, TD3 and TD3-FORK (trunk, FC + ReLU, FC + tanh) or PPO (the
@@ -324,16 +343,14 @@ class StackedFeedForwardPolicy(_Policy):
 
     def forward(self, obs: Tensor, state: _State2) -> Tuple[Tensor, _State2]:
         prev, history = state
-        view = self._view(obs, prev)
-        n = view.shape[0]
-        stacked = torch.cat([history.reshape(n, (self.k - 1) * self.view_dim), view], 1)
+        stacked, history = _stacked(self._view(obs, prev), history)
         a = self._env_action(self.net(stacked))
-        return a, (a, torch.cat([history[:, 1:], view.unsqueeze(1)], 1))
+        return a, (a, history)
 
     @torch.jit.export
     def initial_state(self, n: int) -> _State2:
         """The state of ``n`` environments at an episode start."""
-        return (self._no_action(n), self.act_low.new_zeros((n, self.k - 1, self.view_dim)))
+        return (self._no_action(n), self._no_views(n, self.k - 1, self.view_dim))
 
 
 class LstmPolicy(_Policy):
@@ -350,16 +367,49 @@ class LstmPolicy(_Policy):
 
     def forward(self, obs: Tensor, state: _State3) -> Tuple[Tensor, _State3]:
         prev, h, c = state
-        x = self.trunk(self._view(obs, prev))
-        h, c = self.lstm.step(x, h, c)
-        a = self._env_action(self.head(x, h))
+        a, h, c = self._act(self._view(obs, prev), h, c)
         return a, (a, h, c)
+
+    def _act(self, view: Tensor, h: Tensor, c: Tensor) -> _State3:
+        """The action for the agent's input ``view`` and the LSTM state after it."""
+        x = self.trunk(view)
+        h, c = self.lstm.step(x, h, c)
+        return self._env_action(self.head(x, h)), h, c
+
+    def _zero(self, n: int) -> Tensor:
+        """The LSTM's state at an episode start: zeros ``[n, H]``."""
+        return self.lstm.weight_hh.new_zeros((n, self.lstm.weight_hh.shape[1]))
 
     @torch.jit.export
     def initial_state(self, n: int) -> _State3:
         """The state of ``n`` environments at an episode start."""
-        zero = self.lstm.weight_hh.new_zeros((n, self.lstm.weight_hh.shape[1]))
-        return (self._no_action(n), zero, zero)
+        return (self._no_action(n), self._zero(n), self._zero(n))
+
+
+class StackedLstmPolicy(LstmPolicy):
+    """A recurrent RDPG agent trained with a frame stack of ``s``: its LSTM steps on the last
+    ``s`` views side by side, oldest first.
+    State: ``(prev_action, stack [n, s - 1, D], h [n, H], c [n, H])``."""
+
+    state_names = ("prev_action", "stack", "h", "c")
+
+    def __init__(self, trunk: nn.Module, lstm: _Lstm, head: _Head, s: int, view_dim: int,
+                 **base: Any):
+        super().__init__(trunk, lstm, head, **base)
+        self.s = s
+        self.view_dim = view_dim
+
+    def forward(self, obs: Tensor, state: _State4) -> Tuple[Tensor, _State4]:
+        prev, stack, h, c = state
+        stacked, stack = _stacked(self._view(obs, prev), stack)
+        a, h, c = self._act(stacked, h, c)
+        return a, (a, stack, h, c)
+
+    @torch.jit.export
+    def initial_state(self, n: int) -> _State4:
+        """The state of ``n`` environments at an episode start."""
+        stack = self._no_views(n, self.s - 1, self.view_dim)
+        return (self._no_action(n), stack, self._zero(n), self._zero(n))
 
 
 class WindowPolicy(_Policy):
@@ -382,7 +432,12 @@ class WindowPolicy(_Policy):
 
     def forward(self, obs: Tensor, state: _State3) -> Tuple[Tensor, _State3]:
         prev, history, count = state
-        view = self._view(obs, prev)
+        a, history, count = self._act(self._view(obs, prev), history, count)
+        return a, (a, history, count)
+
+    def _act(self, view: Tensor, history: Tensor, count: Tensor) -> _State3:
+        """The action for the agent's input ``view`` after its ``history`` (``count`` real
+        views), and the history and count after it."""
         n, s = history.shape[0], self.k - 1
         x = self.trunk(history.reshape(n * s, self.view_dim)).reshape(n, s, -1)
         zero = self.lstm.weight_hh.new_zeros((n, self.lstm.weight_hh.shape[1]))
@@ -397,13 +452,42 @@ class WindowPolicy(_Policy):
         h, _ = self.lstm.step(x_t, h, c)
         a = self._env_action(self.head(x_t, h))
         history = torch.cat([history[:, 1:], view.unsqueeze(1)], 1)
-        return a, (a, history, (count + 1.0).clamp(max=float(s)))
+        return a, history, (count + 1.0).clamp(max=float(s))
 
     @torch.jit.export
     def initial_state(self, n: int) -> _State3:
         """The state of ``n`` environments at an episode start."""
-        history = self.act_low.new_zeros((n, self.k - 1, self.view_dim))
+        history = self._no_views(n, self.k - 1, self.view_dim)
         return (self._no_action(n), history, self.act_low.new_zeros((n,)))
+
+
+class StackedWindowPolicy(WindowPolicy):
+    """A window-of-k RDPG agent trained with a frame stack of ``s``: its window holds the
+    stacked inputs (``s`` views side by side, oldest first) of its last ``k - 1`` steps.
+    State: ``(prev_action, stack [n, s - 1, D], history [n, k - 1, s * D], count [n])``."""
+
+    state_names = ("prev_action", "stack", "history", "count")
+
+    def __init__(
+        self, trunk: nn.Module, lstm: _Lstm, head: _Head, k: int, s: int, view_dim: int,
+        **base: Any
+    ):
+        super().__init__(trunk, lstm, head, k, s * view_dim, **base)
+        self.s = s
+        self.stack_dim = view_dim
+
+    def forward(self, obs: Tensor, state: _State4) -> Tuple[Tensor, _State4]:
+        prev, stack, history, count = state
+        stacked, stack = _stacked(self._view(obs, prev), stack)
+        a, history, count = self._act(stacked, history, count)
+        return a, (a, stack, history, count)
+
+    @torch.jit.export
+    def initial_state(self, n: int) -> _State4:
+        """The state of ``n`` environments at an episode start."""
+        stack = self._no_views(n, self.s - 1, self.stack_dim)
+        history = self._no_views(n, self.k - 1, self.view_dim)
+        return (self._no_action(n), stack, history, self.act_low.new_zeros((n,)))
 
 
 def _read(agent_dir: Path, name: str) -> bytes:
@@ -455,13 +539,13 @@ def _rdpg_actor(
     head = _Head(bool(cfg["core_skip"]), nn.Sequential(*layers))
     if not cfg["recurrent"]:
         return _feed_forward(_FeedForwardActor(trunk, core, head), stack, view_dim, base)
-    if stack != 1:
-        raise ValueError(
-            f"config.toml: train.frame_stack = {stack} on a recurrent agent: not exported (act "
-            "with rdpg.Policy, which stacks its views itself)"
-        )
-    if cfg["act_window"]:
-        return WindowPolicy(trunk, core, head, cfg["act_window"], view_dim, **base)
+    window = cfg["act_window"]
+    if window and stack > 1:
+        return StackedWindowPolicy(trunk, core, head, window, stack, view_dim, **base)
+    if window:
+        return WindowPolicy(trunk, core, head, window, view_dim, **base)
+    if stack > 1:
+        return StackedLstmPolicy(trunk, core, head, stack, view_dim, **base)
     return LstmPolicy(trunk, core, head, **base)
 
 
@@ -478,8 +562,7 @@ def to_torch(
     parameters frozen (``requires_grad_()`` to train it further).
 
     ``config`` is the run's parsed ``config.toml`` (its ``algo`` and the ``[train]`` settings
-    ``hide_obs``, ``prev_action_obs`` and ``frame_stack`` are read; a recurrent agent with a
-    frame stack is refused); the bounds are those of the full environment's spaces (the
+    ``hide_obs``, ``prev_action_obs`` and ``frame_stack`` are read); the bounds are those of the full environment's spaces (the
     observation bounds give its size). See the module docs for the state layouts. An
     algorithm, agent format or setting this reader does not know, or files that do not fit
     each other, is a ``ValueError`` naming the file (and tensor).
