@@ -11,7 +11,7 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use rdpg_agents::common::checkpoint::seal;
-use rdpg_agents::common::{evaluate_policy, evaluate_policy_traced, EpisodeTrace};
+use rdpg_agents::common::{evaluate_policy, evaluate_policy_traced, EpisodeTrace, TrainConfig};
 use rdpg_agents::rdpg::inject::{TeacherInfo, TeacherTest};
 use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats};
 use serde::Serialize;
@@ -130,9 +130,9 @@ fn save_latest(
     run.commit(&tmp, &dst)
 }
 
-/// What a resume may change in a run's `config.toml`: the budget, the checkpoint and kept-agent
-/// cadences and `agent.parallel_twins` (a speed setting that changes no number; the trainer
-/// takes it).
+/// What a resume may change in a run's `config.toml`: the budget, the final test's size
+/// (`train.test_episodes`: it runs after training), the checkpoint and kept-agent cadences and
+/// `agent.parallel_twins` (a speed setting that changes no number; the trainer takes it).
 /// Any other edit since the checkpoint (`then`) would be ignored by the restored trainer while
 /// reports showed it as in effect, so it is refused, naming the keys.
 fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Result<()> {
@@ -140,6 +140,7 @@ fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Resul
         let mut t: toml::Table = toml::from_str(&e.to_toml()?)?;
         if let Some(toml::Value::Table(train)) = t.get_mut("train") {
             train.remove("total_steps");
+            train.remove("test_episodes");
         }
         if let Some(toml::Value::Table(run)) = t.get_mut("run") {
             run.remove("checkpoint_every");
@@ -155,8 +156,8 @@ fn check_resume_edits(then: &Experiment, now: &Experiment, path: &Path) -> Resul
     if !changed.is_empty() {
         bail!(
             "{} was edited since the last checkpoint ({}): a resumed run keeps the settings it \
-             was started with, except train.total_steps (or --steps), run.checkpoint_every, \
-             run.keep_agents_every and agent.parallel_twins. \
+             was started with, except train.total_steps (or --steps), train.test_episodes, \
+             run.checkpoint_every, run.keep_agents_every and agent.parallel_twins. \
              Undo the edit, or start a new run from the edited file with --config",
             path.display(),
             changed.join(", ")
@@ -393,7 +394,9 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     }
     log.sync()?;
     save_latest(trainer.as_mut(), &run, &exp, &log)?;
-    log.test_eval = Some(test_best(&run, &exp, log.best_eval.as_ref())?);
+    if exp.train.test_episodes > 0 {
+        log.test_eval = Some(test_best(&run, &exp, log.best_eval.as_ref())?);
+    }
     log.write_summary(&exp, trainer.steps())?;
     log.bar.finish();
     let s = log.summary(&exp, trainer.steps());
@@ -599,6 +602,18 @@ impl ActionsWriter {
     }
 }
 
+/// `--episodes`, or else the run's `train.test_episodes`; a run that declared no test (0)
+/// needs `--episodes`.
+pub(crate) fn test_episodes(episodes: Option<usize>, t: &TrainConfig) -> Result<usize> {
+    match episodes.unwrap_or(t.test_episodes) {
+        0 => bail!(
+            "the run has no test episodes (train.test_episodes = 0: a tuning run whose test \
+             seeds stay unopened); give --episodes"
+        ),
+        n => Ok(n),
+    }
+}
+
 /// `rdpg eval`.
 pub fn eval(a: &EvalArgs) -> Result<()> {
     if a.episodes == Some(0) {
@@ -611,7 +626,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             .with_context(|| format!("--memory {k} on {}", a.run.display()))?;
     }
     let seed = a.seed.unwrap_or(exp.train.test_seed);
-    let episodes = a.episodes.unwrap_or(exp.train.test_episodes);
+    let episodes = test_episodes(a.episodes, &exp.train)?;
     let r = match &a.actions_out {
         None => evaluate_policy(policy.as_mut(), &exp.train, episodes, seed)?,
         Some(path) => {

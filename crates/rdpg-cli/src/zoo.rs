@@ -146,7 +146,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     let entry = RunDir::new(&tmp);
     let (_, mut policy) = entry.policy(Which::Best)?;
     let t = &exp.train;
-    let episodes = a.episodes.unwrap_or(t.test_episodes);
+    let episodes = crate::train::test_episodes(a.episodes, t)?;
     let test = evaluate_policy(policy.as_mut(), t, episodes, t.test_seed)?;
     crate::report::plot_runs(std::slice::from_ref(a_run), &tmp.join("curves.png"))?;
     let target = RenderTarget {

@@ -1244,6 +1244,58 @@ fn scanning_recalls_a_cue_older_than_the_window_and_zero_states_cannot() {
     assert!(without <= 0.3, "without the scan: {without}");
 }
 
+/// A tuning run (`train.test_episodes = 0`) ends without a test: its summary has none, and
+/// `rdpg eval` on it asks for `--episodes` rather than opening the test seeds by default. A
+/// resume may give it a test (the edit changes no training number).
+#[test]
+fn a_tuning_run_never_opens_the_test_seeds() {
+    let dir = tmp("run-tuning");
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = ok(rdpg()
+        .args(["train", "--quiet", "--steps", "600", "--config"])
+        .arg(configs_dir().join("cue-rdpg.toml"))
+        .arg("--out")
+        .arg(&dir)
+        .args([
+            "--set",
+            "train.test_episodes=0",
+            "--set",
+            "train.eval_every=300",
+        ]));
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(summary["best_eval"]["step"].as_u64().is_some(), "{summary}");
+    assert!(summary["test_eval"].is_null(), "{summary}");
+    assert!(json_file(&dir.join("summary.json"))["test_eval"].is_null());
+    fails(
+        rdpg().args(["eval", "--run"]).arg(&dir),
+        &["train.test_episodes = 0", "--episodes"],
+    );
+    let eval: Value = serde_json::from_slice(
+        &ok(rdpg().args(["eval", "--episodes", "3", "--run"]).arg(&dir)).stdout,
+    )
+    .unwrap();
+    assert_eq!(eval["returns"].as_array().map(Vec::len), Some(3), "{eval}");
+    let config = dir.join("config.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    let edited = text.replace("test_episodes = 0", "test_episodes = 2");
+    assert_ne!(edited, text);
+    std::fs::write(&config, edited).unwrap();
+    let out = ok(rdpg()
+        .args(["train", "--quiet", "--steps", "900", "--resume"])
+        .arg(&dir));
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["test_eval"]["episodes"], 2, "{summary}");
+    fails(
+        rdpg()
+            .args(["train", "--quiet", "--steps", "10", "--config"])
+            .arg(configs_dir().join("cue-rdpg.toml"))
+            .arg("--out")
+            .arg(tmp("run-tuning-bad"))
+            .args(["--set", "train.test_episodes=1000001"]),
+        &["train.test_episodes", "not from 0 to 1000000"],
+    );
+}
+
 /// A run whose networks diverge stops with an error naming the non-finite tensor, and never
 /// replaces its last good checkpoint with the diverged state.
 #[test]
@@ -1411,6 +1463,10 @@ fn sweep_files_are_checked_and_planned() {
         (
             "steps = 100\n[[row]]\nname = \"a/b\"\n",
             &["row name \"a/b\""][..],
+        ),
+        (
+            "steps = 100\n[[row]]\nname = \"a\"\nset = [\"train.test_episodes=0\"]\n",
+            &["row \"a\"", "train.test_episodes = 0", "each trial's test"][..],
         ),
     ] {
         write(body);

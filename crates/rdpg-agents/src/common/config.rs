@@ -80,7 +80,8 @@ pub struct TrainConfig {
     /// First seed of the test episodes (`test_seed + k`), disjoint from the validation ones:
     /// the final evaluation of the chosen agent and `rdpg eval`'s default.
     pub test_seed: u64,
-    /// Episodes of the final test evaluation.
+    /// Episodes of the final test evaluation; 0: no final test, the test seeds stay unopened
+    /// (a tuning run, chosen on validation only).
     pub test_episodes: usize,
     /// Master seed of the run.
     pub seed: u64,
@@ -158,7 +159,12 @@ impl TrainConfig {
             crate::common::tensor::MAX_THREADS,
         )?;
         within("train.eval_episodes", self.eval_episodes, 1_000_000)?;
-        within("train.test_episodes", self.test_episodes, 1_000_000)?;
+        if self.test_episodes > 1_000_000 {
+            return bad(
+                "train.test_episodes",
+                format!("{} is not from 0 to 1000000", self.test_episodes),
+            );
+        }
         let overlap = |a: u64, n: usize, b: u64, m: usize| {
             a < b.saturating_add(m as u64) && b < a.saturating_add(n as u64)
         };

@@ -310,6 +310,12 @@ impl Sweep {
                     });
                     let exp = Experiment::load(&base, &set)
                         .with_context(|| format!("row {name:?} (seed {seed})"))?;
+                    if exp.train.test_episodes == 0 {
+                        bail!(
+                            "row {name:?}: train.test_episodes = 0, but a sweep's tables need \
+                             each trial's test"
+                        );
+                    }
                     let id = format!("{name}-s{seed}");
                     trials.push(Trial {
                         run_dir: root.join("trials").join(&id),
