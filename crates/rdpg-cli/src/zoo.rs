@@ -107,6 +107,8 @@ pub fn run(a: &ZooArgs) -> Result<()> {
         );
     }
     let exp = run.experiment()?;
+    // Before anything is written: a run that declared no test needs --episodes.
+    let episodes = crate::train::test_episodes(a.episodes, &exp.train)?;
     let summary = run.read_summary()?;
     // Write into a temporary sibling, then rename: no half-written entry is left behind.
     let mut tmp_name = a_out.file_name().unwrap_or_default().to_os_string();
@@ -146,7 +148,6 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     let entry = RunDir::new(&tmp);
     let (_, mut policy) = entry.policy(Which::Best)?;
     let t = &exp.train;
-    let episodes = crate::train::test_episodes(a.episodes, t)?;
     let test = evaluate_policy(policy.as_mut(), t, episodes, t.test_seed)?;
     crate::report::plot_runs(std::slice::from_ref(a_run), &tmp.join("curves.png"))?;
     let target = RenderTarget {

@@ -1275,6 +1275,16 @@ fn a_tuning_run_never_opens_the_test_seeds() {
     )
     .unwrap();
     assert_eq!(eval["returns"].as_array().map(Vec::len), Some(3), "{eval}");
+    let entry = tmp("run-tuning-zoo");
+    fails(
+        rdpg()
+            .args(["zoo", "--run"])
+            .arg(&dir)
+            .arg("--out")
+            .arg(&entry),
+        &["train.test_episodes = 0", "--episodes"],
+    );
+    assert!(!entry.exists() && !entry.with_file_name("run-tuning-zoo.partial").exists());
     let config = dir.join("config.toml");
     let text = std::fs::read_to_string(&config).unwrap();
     let edited = text.replace("test_episodes = 0", "test_episodes = 2");
