@@ -25,8 +25,10 @@ use anyhow::{Context, Result};
 const SIGNAL_THREAD: &str = "rdpg-signals";
 
 /// Routes Ctrl-C, SIGTERM and SIGHUP to `stop`: the first sets it (the training loop then
-/// finishes its step, saves and exits 130); a second exits at once with 130. Call it from the
-/// main thread before any other thread is spawned.
+/// finishes its step, saves and exits 130). Once stopping, a Ctrl-C exits at once with 130 (a
+/// person who will not wait); a repeated SIGTERM or SIGHUP changes nothing: schedulers, session
+/// ends and sweep drivers may each send one, and none of them means "drop the save". Call it
+/// from the main thread before any other thread is spawned.
 pub fn install(stop: Arc<AtomicBool>) -> Result<()> {
     #[cfg(unix)]
     {
@@ -41,21 +43,26 @@ pub fn install(stop: Arc<AtomicBool>) -> Result<()> {
             .name(SIGNAL_THREAD.into())
             .spawn(move || {
                 // (sigwait can only fail on an invalid set, which this is not.)
-                while set.wait().is_ok() {
-                    on_signal(&stop);
+                while let Ok(signal) = set.wait() {
+                    on_signal(&stop, signal == Signal::SIGINT);
                 }
             })
             .context("starting the signal thread")?;
     }
     #[cfg(not(unix))]
-    ctrlc::set_handler(move || on_signal(&stop)).context("installing the signal handler")?;
+    ctrlc::set_handler(move || on_signal(&stop, true)).context("installing the signal handler")?;
     Ok(())
 }
 
-fn on_signal(stop: &AtomicBool) {
-    if stop.swap(true, Ordering::SeqCst) {
+/// `ctrl_c`: the signal is Ctrl-C (SIGINT), the one a person sends twice to leave now.
+fn on_signal(stop: &AtomicBool, ctrl_c: bool) {
+    if !stop.swap(true, Ordering::SeqCst) {
+        return;
+    }
+    if ctrl_c {
         // The last checkpoint on disk stays whole: checkpoints are committed by rename.
         eprintln!("second interrupt: exiting without saving (the last checkpoint is intact)");
         std::process::exit(130);
     }
+    eprintln!("already stopping: saving first (Ctrl-C to exit without saving)");
 }

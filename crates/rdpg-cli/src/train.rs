@@ -218,8 +218,8 @@ fn keep_agent(trainer: &dyn Trainer, run: &RunDir, log: &RunLog) -> Result<()> {
 
 /// `rdpg train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
-    // Ctrl-C, SIGTERM and SIGHUP: finish the current step, save, exit 130 (a second one exits
-    // at once). First, before any thread exists (see `stop`).
+    // Ctrl-C, SIGTERM and SIGHUP: finish the current step, save, exit 130 (a second Ctrl-C
+    // exits at once). First, before any thread exists (see `stop`).
     let stop = Arc::new(AtomicBool::new(false));
     crate::stop::install(stop.clone())?;
     let (run, exp, mut trainer, _lock) = if let Some(dir) = &a.resume {

@@ -83,8 +83,8 @@ def _alive(pid: int, run_dir: str) -> bool:
 
 
 def _stop_once(storage: str, trial_id: str, pid: int, run_dir: str) -> bool:
-    """Sends the trial's ``rdpg train`` its one SIGTERM, unless someone already did: a second
-    signal would make it exit without saving. True when this call is the one that sent it."""
+    """Sends the trial's ``rdpg train`` its one SIGTERM, unless this driver already did. True
+    when this call is the one that sent it."""
     flag = os.path.join(_running_dir(storage), trial_id + ".stopping")
     try:
         os.close(os.open(flag, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
@@ -175,8 +175,8 @@ def make_trainable(plan: dict):
             os.makedirs(os.path.dirname(run_dir), exist_ok=True)
             log_path = run_dir + ".log"
             with open(log_path, "ab") as log:
-                # Its own session: a stop reaches it once, as the SIGTERM below, never also
-                # through a process group (a second signal makes it exit without saving).
+                # Its own session: a stop reaches it as the SIGTERM below, never as a Ctrl-C
+                # through the terminal's process group (a second Ctrl-C exits without saving).
                 proc = subprocess.Popen(
                     args, cwd=cwd, stdout=log, stderr=log, start_new_session=True
                 )
