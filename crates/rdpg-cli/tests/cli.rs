@@ -1545,7 +1545,7 @@ fn processes_naming(needle: &str) -> Vec<u32> {
 
 /// `rdpg sweep` end to end on a local Ray: two rows × two seeds of the cue task. Stopped with
 /// SIGTERM after the first checkpoint, the driver exits only when every running trial has
-/// saved; rerun on one core, one trial's `rdpg train` stopped from outside stops the sweep
+/// saved; rerun, it stops the same way on `rdpg sweep FILE --stop`; rerun on one core, one trial's `rdpg train` stopped from outside stops the sweep
 /// (no other trial runs); the third run finishes. The interrupted trials resume (not restart)
 /// and `rdpg table` gives the numbers of the runs' own summaries.
 #[test]
@@ -1610,6 +1610,56 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         Vec::<u32>::new(),
         "a trial's rdpg train outlived its stopped sweep"
     );
+    let running = dir.join("runs/sweeps/s/running");
+    let first_running_trial = || {
+        let t0 = std::time::Instant::now();
+        loop {
+            assert!(t0.elapsed().as_secs() < 180, "no trial ran after 3 minutes");
+            let rec = std::fs::read_dir(&running).ok().and_then(|d| {
+                d.flatten()
+                    .find(|e| e.file_name().to_string_lossy().ends_with(".json"))
+            });
+            if let Some(e) = rec {
+                if let Ok(v) = serde_json::from_slice::<Value>(&std::fs::read(e.path()).unwrap()) {
+                    let name = e.file_name().to_string_lossy().to_string();
+                    // Past its start-up (the signal handler is installed before the run is
+                    // loaded).
+                    std::thread::sleep(std::time::Duration::from_millis(1500));
+                    break (
+                        name.trim_end_matches(".json").to_string(),
+                        v["pid"].as_u64().unwrap(),
+                    );
+                }
+            }
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+    };
+    // `--stop` from another shell: a sweep that is not running is said so; a running one stops
+    // as on SIGTERM, and `--stop` returns only once its driver has exited.
+    let stop = || {
+        let out = ok(rdpg().current_dir(&dir).args(["sweep", "s.toml", "--stop"]));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    assert!(stop().contains("sweep `s` is not running"));
+    let mut child = sweep()
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    first_running_trial();
+    assert!(stop().contains("sweep `s` stopped; `rdpg sweep s.toml` continues it"));
+    assert!(
+        child.try_wait().unwrap().is_some(),
+        "`--stop` returned before the driver exited"
+    );
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("the sweep stopped: stopped by `rdpg sweep --stop`"),
+        "{err}"
+    );
+    assert_eq!(processes_naming(&trials_text), Vec::<u32>::new());
+    assert!(!dir.join("runs/sweeps/s/driver.json").exists());
     // Rerun on one core; stop the first trial that runs from outside, as an operator would.
     let events = |t: &str| std::fs::read_to_string(trials.join(t).join("versions.jsonl")).ok();
     let all = ["rdpg-s0", "rdpg-s1", "ddpg-s0", "ddpg-s1"];
@@ -1619,27 +1669,7 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let running = dir.join("runs/sweeps/s/running");
-    let t0 = std::time::Instant::now();
-    let (stopped, pid) = loop {
-        assert!(t0.elapsed().as_secs() < 180, "no trial ran after 3 minutes");
-        let rec = std::fs::read_dir(&running).ok().and_then(|d| {
-            d.flatten()
-                .find(|e| e.file_name().to_string_lossy().ends_with(".json"))
-        });
-        if let Some(e) = rec {
-            if let Ok(v) = serde_json::from_slice::<Value>(&std::fs::read(e.path()).unwrap()) {
-                let name = e.file_name().to_string_lossy().to_string();
-                break (
-                    name.trim_end_matches(".json").to_string(),
-                    v["pid"].as_u64().unwrap(),
-                );
-            }
-        }
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    };
-    // Past its start-up (the signal handler is installed before the run is loaded).
-    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let (stopped, pid) = first_running_trial();
     ok(Command::new("kill").args(["-TERM", &pid.to_string()]));
     let out = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);

@@ -10,7 +10,8 @@
 //! resumes or skips each trial. `--collect` writes each finished trial's small result file
 //! under the sweep's `results` folder (what `rdpg table` reads and what gets committed), and
 //! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`results::Ledger`]);
-//! `--status` tells where a running or stopped sweep stands (`status.rs`).
+//! `--status` tells where a running or stopped sweep stands (`status.rs`); `--stop` stops a
+//! running one from any shell and waits until its trials have saved (`stop.rs`).
 //!
 //! ```toml
 //! name = "table1-cpu"                      # default: the file's stem
@@ -33,6 +34,7 @@
 
 mod results;
 mod status;
+mod stop;
 
 use results::{collect, write_ledger};
 pub use results::{run_record, RunRecord, TrialResult};
@@ -67,6 +69,10 @@ pub struct SweepArgs {
     /// write), and start nothing.
     #[arg(long, conflicts_with = "plan")]
     status: bool,
+    /// Stop the running sweep of this file, as Ctrl-C to its driver would (each running trial
+    /// saves its checkpoint; rerun the sweep to continue), and return once it has stopped.
+    #[arg(long, conflicts_with_all = ["plan", "collect", "status"])]
+    stop: bool,
     /// CPUs the local Ray may use (default: all cores); at most `cpus / threads` trials run at
     /// once.
     #[arg(long)]
@@ -451,6 +457,9 @@ pub fn run(a: &SweepArgs) -> Result<()> {
     if a.status {
         print!("{}", status::report(&sweep)?);
         return Ok(());
+    }
+    if a.stop {
+        return stop::stop(&sweep, &a.file);
     }
     if a.collect {
         for line in collect(&sweep)? {

@@ -9,7 +9,9 @@ replay and can be hundreds of MB. Rerunning the command restores the Tune experi
 trials continue with ``rdpg train --resume``, finished ones are skipped. A trial that finishes
 has its small result file written (``rdpg sweep FILE --collect``) for ``rdpg table``.
 
-Stopping. Ctrl-C or SIGTERM to the driver stops the sweep: each running ``rdpg train`` gets one
+Stopping. Ctrl-C or SIGTERM to the driver, or ``rdpg sweep FILE --stop`` from any shell (it
+leaves the stop marker ``<storage>/stop.json`` and waits for the driver, which names itself in
+``<storage>/driver.json`` while it runs), stops the sweep: each running ``rdpg train`` gets one
 SIGTERM, and the driver exits only when every one has saved its checkpoint. A trial's ``rdpg
 train`` stopped from outside (it saves and exits with 130) stops the whole sweep the same way,
 rather than counting as a failure that lets the next trial start. Each running trial has a
@@ -71,6 +73,10 @@ def _running_dir(storage: str) -> str:
 
 def _stop_marker(storage: str) -> str:
     return os.path.join(storage, "stop.json")
+
+
+def _driver_record(storage: str) -> str:
+    return os.path.join(storage, "driver.json")
 
 
 def _alive(pid: int, run_dir: str) -> bool:
@@ -333,6 +339,10 @@ def main(argv: list[str]) -> int:
             include_dashboard=False,
             object_store_memory=200 * 1024 * 1024,
         )
+    # Who drives the sweep, for `rdpg sweep FILE --stop` (removed when the driver exits; one
+    # left by a driver that died names a process that is gone, which `--stop` checks).
+    with open(_driver_record(storage), "w") as f:
+        json.dump({"pid": os.getpid(), "plan": argv[1]}, f)
     try:
         fn = tune.with_resources(make_trainable(plan), {"cpu": plan["threads"]})
         if tune.Tuner.can_restore(path):
@@ -359,12 +369,18 @@ def main(argv: list[str]) -> int:
         if waited:
             print(f"saved and stopped: {', '.join(waited)}", file=sys.stderr)
         ray.shutdown()
+        if os.path.exists(_driver_record(storage)):
+            os.remove(_driver_record(storage))
     if os.path.exists(_stop_marker(storage)):
         with open(_stop_marker(storage)) as f:
-            who = json.load(f).get("trial")
+            marker = json.load(f)
+        why = (
+            f"trial {marker['trial']} was stopped from outside"
+            if "trial" in marker
+            else f"stopped by `{marker.get('by', 'a stop marker')}`"
+        )
         print(
-            f"the sweep stopped: trial {who} was stopped from outside; rerun the command to "
-            "continue every unfinished trial",
+            f"the sweep stopped: {why}; rerun the command to continue every unfinished trial",
             file=sys.stderr,
         )
     finished = [t["id"] for t in plan["trials"] if _finished(t)]
