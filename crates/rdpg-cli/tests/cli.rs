@@ -1647,7 +1647,15 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         .spawn()
         .unwrap();
     first_running_trial();
+    let status = || {
+        let out = ok(rdpg()
+            .current_dir(&dir)
+            .args(["sweep", "s.toml", "--status"]));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    assert!(status().contains("Its driver runs (process "));
     assert!(stop().contains("sweep `s` stopped; `rdpg sweep s.toml` continues it"));
+    assert!(status().contains("No driver runs."));
     assert!(
         child.try_wait().unwrap().is_some(),
         "`--stop` returned before the driver exited"
@@ -1686,12 +1694,6 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
     }
     // `--status` reads where it stands: the stopped trial, stopped (its record names a
     // process that is gone), nothing running.
-    let status = || {
-        let out = ok(rdpg()
-            .current_dir(&dir)
-            .args(["sweep", "s.toml", "--status"]));
-        String::from_utf8_lossy(&out.stdout).to_string()
-    };
     let now = status();
     assert!(now.contains(" finished, 0 running, "), "{now}");
     let line = now

@@ -1,6 +1,6 @@
-//! `rdpg sweep FILE --status`: where a sweep that runs for days stands — each trial's state,
-//! progress, validation and speed, when the running ones will end, and the core-hours left,
-//! all from the files the trials write (nothing is started or changed).
+//! `rdpg sweep FILE --status`: where a sweep that runs for days stands — whether its driver runs,
+//! each trial's state, progress, validation and speed, when the running ones will end, and the
+//! core-hours left, all from the files the sweep writes (nothing is started or changed).
 
 use super::{results::TrialResult, Sweep, Trial};
 use crate::rundir::{read_json, Metric, RunDir};
@@ -207,8 +207,12 @@ pub(super) fn report(sweep: &Sweep) -> Result<String> {
         .collect::<Result<Vec<_>>>()?;
     let left = seconds_left(&trials);
     let count = |s: State| trials.iter().filter(|t| t.state == s).count();
+    let driver = match super::stop::running_driver(sweep)? {
+        Some(pid) => format!("Its driver runs (process {pid}; `--stop` stops it)."),
+        None => "No driver runs.".into(),
+    };
     let mut out = format!(
-        "Sweep `{}`: {} trials, {} finished, {} running, {} stopped, {} not started.\n\n\
+        "Sweep `{}`: {} trials, {} finished, {} running, {} stopped, {} not started. {driver}\n\n\
          | trial | status | agent steps | wall | validation: last | best | test | steps/h now | left |\n\
          |---|---|---:|---:|---|---|---:|---:|---:|\n",
         sweep.file.name,

@@ -43,7 +43,7 @@ pub(super) fn stop(sweep: &Sweep, file: &Path) -> Result<()> {
 }
 
 /// The process id in `driver.json`, if that process is still this sweep's driver.
-fn running_driver(sweep: &Sweep) -> Result<Option<u32>> {
+pub(super) fn running_driver(sweep: &Sweep) -> Result<Option<u32>> {
     let record = sweep.root.join("driver.json");
     if !record.exists() {
         return Ok(None);
