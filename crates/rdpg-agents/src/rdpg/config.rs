@@ -144,7 +144,8 @@ pub struct RdpgConfig {
     /// input (`[y_t, a_t]`, with `core_skip` `[x_t, y_t, a_t]`): the core (the LSTM) reads
     /// observations only, so the critic's state summarises the observation history, as in the
     /// public recurrent Hardcore agents (Özalp's LSTM critics). Needs `critic_action_fc = 0`
-    /// (the raw action joins); any trunk.
+    /// (the raw action joins) and a `critic_head` (without one Q is linear in the action);
+    /// any trunk.
     pub critic_action_after_core: bool,
     /// Hidden layers (FC + ReLU) between the actor's core and its output layer; empty (the
     /// default, the paper's): the output layer reads the core directly.
@@ -418,6 +419,16 @@ impl RdpgConfig {
             return Err(bad(
                 "critic_action_after_core",
                 "needs critic_action_fc = 0: the raw action joins the core's output",
+            ));
+        }
+        if self.critic_action_after_core && self.critic_head.is_empty() {
+            // Q = w·y + v·a + b: dQ/da = v in every state, so the actor is pushed the same way
+            // everywhere (it saturates, and a walker falls at once).
+            return Err(bad(
+                "critic_action_after_core",
+                "needs a critic head (e.g. critic_head = [128]): with the action joining at the \
+                 output layer, Q is linear in the action and its action gradient is the same in \
+                 every state",
             ));
         }
         if self.critic_action_fc == 0

@@ -557,20 +557,22 @@ mod tests {
 
     /// `critic_action_after_core`: the core reads observations only (its state is the same
     /// whatever the actions), the action joins at the head, and Q depends on it; with the
-    /// lidar trunk too; an action branch alongside is refused.
+    /// lidar trunk too; an action branch alongside is refused, and so is a critic without a
+    /// head (Q linear in the action).
     #[test]
     fn critic_with_the_action_after_its_core() {
         tch::manual_seed(2);
         let cfg = RdpgConfig {
             critic_action_fc: 0,
             critic_action_after_core: true,
+            critic_head: vec![5],
             ..cfg_small()
         };
         cfg.validate().unwrap();
         let vs = nn::VarStore::new(Device::Cpu);
         let critic = Critic::new(&(vs.root() / "c"), &cfg, 24, 4);
         let vars = vs.variables();
-        assert_eq!(vars["c.head.weight"].size(), [1, 9 + 4]);
+        assert_eq!(vars["c.head_mlp.fc0.weight"].size(), [5, 9 + 4]);
         assert_eq!(vars["c.trunk.body_fc.weight"].size(), [6, 14]);
         let obs = Tensor::randn([3, 5, 24], (Kind::Float, Device::Cpu));
         let a1 = Tensor::randn([3, 5, 4], (Kind::Float, Device::Cpu));
@@ -585,9 +587,18 @@ mod tests {
 
         let branch = RdpgConfig {
             critic_action_fc: 8,
-            ..cfg
+            ..cfg.clone()
         };
         let err = branch.validate().unwrap_err().to_string();
         assert!(err.contains("critic_action_after_core"), "{err}");
+        let headless = RdpgConfig {
+            critic_head: vec![],
+            ..cfg
+        };
+        let err = headless.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("critic_action_after_core") && err.contains("linear in the action"),
+            "{err}"
+        );
     }
 }

@@ -78,6 +78,12 @@ fn with_action_after_core(cfg: RdpgConfig, after: bool) -> RdpgConfig {
     RdpgConfig {
         critic_action_after_core: true,
         critic_action_fc: 0,
+        // (It needs a head: without one Q is linear in the action.)
+        critic_head: if cfg.critic_head.is_empty() {
+            vec![4]
+        } else {
+            cfg.critic_head.clone()
+        },
         ..cfg
     }
 }
