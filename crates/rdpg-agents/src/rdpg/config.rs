@@ -415,20 +415,15 @@ impl RdpgConfig {
                 format!("must be at most {MAX_WIDTH}"),
             ));
         }
-        if self.critic_action_after_core && self.critic_action_fc != 0 {
+        // Without a head, Q = w·y + v·a + b: dQ/da = v in every state, so the actor is pushed the
+        // same way everywhere (it saturates, and a walker falls at once).
+        if self.critic_action_after_core
+            && (self.critic_action_fc != 0 || self.critic_head.is_empty())
+        {
             return Err(bad(
                 "critic_action_after_core",
-                "needs critic_action_fc = 0: the raw action joins the core's output",
-            ));
-        }
-        if self.critic_action_after_core && self.critic_head.is_empty() {
-            // Q = w·y + v·a + b: dQ/da = v in every state, so the actor is pushed the same way
-            // everywhere (it saturates, and a walker falls at once).
-            return Err(bad(
-                "critic_action_after_core",
-                "needs a critic head (e.g. critic_head = [128]): with the action joining at the \
-                 output layer, Q is linear in the action and its action gradient is the same in \
-                 every state",
+                "needs critic_action_fc = 0 (the raw action joins the core's output) and a critic \
+                 head, e.g. critic_head = [128] (without one Q is linear in the action)",
             ));
         }
         if self.critic_action_fc == 0
