@@ -42,6 +42,9 @@ pub enum AgentError {
     /// A JSON (de)serialisation error (checkpoint metadata).
     #[error("json: {0}")]
     Json(#[from] serde_json::Error),
+    /// The caller asked for a stop (Ctrl-C, SIGTERM) before the work was done.
+    #[error("stopped before the end")]
+    Stopped,
 }
 
 /// Shorthand for results of this crate.

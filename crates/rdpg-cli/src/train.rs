@@ -13,7 +13,7 @@ use clap::Args;
 use rdpg_agents::common::checkpoint::seal;
 use rdpg_agents::common::{evaluate_policy, evaluate_policy_traced, EpisodeTrace, TrainConfig};
 use rdpg_agents::rdpg::inject::{TeacherInfo, TeacherTest};
-use rdpg_agents::{EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats};
+use rdpg_agents::{AgentError, EpisodeRecord, EvalRecord, TrainObserver, Trainer, UpdateStats};
 use serde::Serialize;
 
 use crate::experiment::{check_memory, Experiment};
@@ -316,7 +316,6 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     };
     let total = exp.train.total_steps;
     let mut log = RunLog::open(&run, trainer.steps(), total, a.quiet, stop.clone())?;
-    let latest = run.checkpoint(Which::Latest);
     // The next multiple of `k` after `step` (never when `k` is 0).
     let every = |k: u64, step: u64| step.checked_div(k).map_or(u64::MAX, |q| (q + 1) * k);
     if !a.quiet {
@@ -357,15 +356,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             log.sync()?;
             save_latest(trainer.as_mut(), &run, &exp, &log)?;
             log.write_summary(&exp, trainer.steps())?;
-            log.bar.abandon();
-            eprintln!(
-                "interrupted at step {}: saved {}; continue with `rdpg train --resume {}`",
-                trainer.steps(),
-                latest.display(),
-                run.root().display()
-            );
-            // Not a success: `rdpg train ... && next-step` must not carry on.
-            std::process::exit(130);
+            stopped(&mut log, &run, trainer.steps());
         }
         if trainer.steps() >= next_ckpt {
             log.sync()?;
@@ -395,7 +386,15 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     log.sync()?;
     save_latest(trainer.as_mut(), &run, &exp, &log)?;
     if exp.train.test_episodes > 0 {
-        log.test_eval = Some(test_best(&run, &exp, log.best_eval.as_ref())?);
+        // Stopped before or during the test: the run is saved at its budget, and a resume
+        // runs only the test.
+        match test_best(&run, &exp, log.best_eval.as_ref(), &stop)? {
+            Some(t) => log.test_eval = Some(t),
+            None => {
+                log.write_summary(&exp, trainer.steps())?;
+                stopped(&mut log, &run, trainer.steps())
+            }
+        }
     }
     log.write_summary(&exp, trainer.steps())?;
     log.bar.finish();
@@ -404,13 +403,41 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     Ok(())
 }
 
+/// Ends a run stopped by Ctrl-C, SIGTERM or SIGHUP, once it is saved at `step`: exits 130.
+fn stopped(log: &mut RunLog, run: &RunDir, step: u64) -> ! {
+    log.bar.abandon();
+    eprintln!(
+        "interrupted at step {step}: saved {}; continue with `rdpg train --resume {}`",
+        run.checkpoint(Which::Latest).display(),
+        run.root().display()
+    );
+    // Not a success: `rdpg train ... && next-step` must not carry on.
+    std::process::exit(130);
+}
+
 /// The final test: the agent chosen on the validation seeds (`checkpoints/best`) on the test
-/// seeds, which nothing else looks at.
-fn test_best(run: &RunDir, exp: &Experiment, best: Option<&EvalRecord>) -> Result<TestSummary> {
+/// seeds, which nothing else looks at; `None` when `stop` is raised before its last episode.
+fn test_best(
+    run: &RunDir,
+    exp: &Experiment,
+    best: Option<&EvalRecord>,
+    stop: &AtomicBool,
+) -> Result<Option<TestSummary>> {
+    if stop.load(Ordering::Relaxed) {
+        return Ok(None);
+    }
     let (_, mut policy) = run.policy(Which::Best)?;
     let t = &exp.train;
-    let r = evaluate_policy(policy.as_mut(), t, t.test_episodes, t.test_seed)?;
-    Ok(TestSummary {
+    let mut each = |_: &EpisodeTrace<'_>| match stop.load(Ordering::Relaxed) {
+        true => Err(AgentError::Stopped),
+        false => Ok(()),
+    };
+    let r =
+        match evaluate_policy_traced(policy.as_mut(), t, t.test_episodes, t.test_seed, &mut each) {
+            Err(AgentError::Stopped) => return Ok(None),
+            r => r?,
+        };
+    Ok(Some(TestSummary {
         step: best.map_or(0, |b| b.step),
         episodes: t.test_episodes,
         first_seed: t.test_seed,
@@ -421,7 +448,7 @@ fn test_best(run: &RunDir, exp: &Experiment, best: Option<&EvalRecord>) -> Resul
         successes: r.successes,
         time_limit_rate: Some(r.time_limit_rate),
         obstacles: r.obstacles,
-    })
+    }))
 }
 
 /// Arguments of `rdpg eval`.

@@ -1224,6 +1224,53 @@ fn interrupt_saves_and_the_run_resumes() {
     assert_eq!(summary["steps"], 3200);
 }
 
+/// A stop during the final test (at the budget, checkpoint saved) ends the run at once with 130
+/// and no test result; a resume runs only the test (no training step, no evaluation), and is
+/// stopped the same way.
+#[test]
+fn a_stop_during_the_final_test_leaves_only_the_test_to_run() {
+    let dir = tmp("run-stopped-in-test");
+    let _ = std::fs::remove_dir_all(&dir);
+    let evals = || std::fs::read_to_string(dir.join("evals.csv")).unwrap();
+    let stop_in_test = |cmd: &mut Command, ready: &dyn Fn() -> bool| {
+        let child = cmd.stderr(std::process::Stdio::piped()).spawn().unwrap();
+        let t0 = std::time::Instant::now();
+        while !ready() {
+            assert!(t0.elapsed().as_secs() < 120, "no test after 2 minutes");
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        // The test of 100 000 episodes runs for far longer than this wait.
+        std::thread::sleep(std::time::Duration::from_millis(300));
+        ok(Command::new("kill").args(["-TERM", &child.id().to_string()]));
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert_eq!(out.status.code(), Some(130), "{err}");
+        assert!(err.contains("interrupted at step 300"), "{err}");
+        let summary: Value =
+            serde_json::from_slice(&std::fs::read(dir.join("summary.json")).unwrap()).unwrap();
+        assert_eq!(summary["steps"], 300);
+        assert!(summary["test_eval"].is_null(), "{summary}");
+    };
+    // The final checkpoint is the first one: written just before the test.
+    let manifest = dir.join("checkpoints/latest/manifest.json");
+    stop_in_test(
+        rdpg()
+            .args(["train", "--quiet", "--steps", "300", "--config"])
+            .arg(configs_dir().join("cue-rdpg.toml"))
+            .args(["--set", "train.test_episodes=100000", "--out"])
+            .arg(&dir),
+        &|| manifest.exists(),
+    );
+    let evaluated = evals();
+    let versions = dir.join("versions.jsonl");
+    let resumed = || std::fs::read_to_string(&versions).is_ok_and(|v| v.contains("\"resume\""));
+    stop_in_test(
+        rdpg().args(["train", "--quiet", "--resume"]).arg(&dir),
+        &resumed,
+    );
+    assert_eq!(evals(), evaluated, "the resume trained or evaluated again");
+}
+
 /// The paper's central claim, scanning, as a learning check (`configs/delayed-cue-rdpg.toml`):
 /// on DelayedCue-v0 the query comes 5 steps after the cue, windows are 4 steps and episodes
 /// 12, so the cue is never inside a window that holds the query. With the 6-step scan RDPG
