@@ -10,6 +10,7 @@
 
 mod bench;
 mod claims;
+mod eval;
 mod experiment;
 mod render;
 mod report;
@@ -41,9 +42,9 @@ enum Command {
     Train(train::TrainArgs),
     /// Evaluate a run's agent deterministically on held-out seeds (stock reward): one JSON
     /// line with the mean, std, success and time-limit shares, every return and length.
-    Eval(train::EvalArgs),
+    Eval(eval::EvalArgs),
     /// Record a trained agent's episodes as a teacher file for experience injection.
-    Record(train::RecordArgs),
+    Record(eval::RecordArgs),
     /// Learning curves of runs as a PNG (training return and evaluations).
     Plot(report::PlotArgs),
     /// Compare runs: a Markdown table in the shape of the paper's Table I and an overlay plot.
@@ -74,8 +75,8 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Train(a) => train::run(&a),
-        Command::Eval(a) => train::eval(&a),
-        Command::Record(a) => train::record(&a),
+        Command::Eval(a) => eval::eval(&a),
+        Command::Record(a) => eval::record(&a),
         Command::Plot(a) => report::plot(&a),
         Command::Compare(a) => report::compare(&a),
         Command::Rollout(a) => rollout::run(&a),

@@ -108,7 +108,7 @@ pub fn run(a: &ZooArgs) -> Result<()> {
     }
     let exp = run.experiment()?;
     // Before anything is written: a run that declared no test needs --episodes.
-    let episodes = crate::train::test_episodes(a.episodes, &exp.train)?;
+    let episodes = crate::eval::test_episodes(a.episodes, &exp.train)?;
     let summary = run.read_summary()?;
     // Write into a temporary sibling, then rename: no half-written entry is left behind.
     let mut tmp_name = a_out.file_name().unwrap_or_default().to_os_string();

@@ -1868,6 +1868,7 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         );
         assert_eq!(r["steps"], r["budget"], "{r}");
         assert_eq!(r["commits"].as_array().unwrap().len(), 1, "{r}");
+        assert!(r["started"].as_u64().is_some(), "{r}");
     }
     // A finished trial whose run directory is gone (another machine) and whose result file
     // is committed is not run again, and its result and ledger line stay as they were.

@@ -201,9 +201,14 @@ pub struct LedgerRow {
     pub budget: u64,
     /// The binary commits that trained it (start and resumes), in order, without repeats.
     pub commits: Vec<String>,
-    /// Times it started again from zero because its run directory was lost (its steps went
-    /// back): its steps are those of the latest start, never spliced onto a lost one.
+    /// Times it started again from zero because its run directory was lost: its steps are
+    /// those of the latest start, never spliced onto a lost one.
     pub restarts: u32,
+    /// Unix time of its run's start (the `start` line of `versions.jsonl`): a resume keeps
+    /// it, a start from zero changes it (absent until it starts, and in ledgers written
+    /// before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub started: Option<u64>,
 }
 
 /// The committed record of a sweep's trials: what ran, how far, on which binary, and which
@@ -232,6 +237,30 @@ fn unique_commits(versions: &[serde_json::Value]) -> Vec<String> {
     out
 }
 
+/// Unix time of the `start` event among a run's version records.
+fn start_time(versions: &[serde_json::Value]) -> Option<u64> {
+    versions
+        .iter()
+        .find(|v| v["event"] == "start")
+        .and_then(|v| v["unix_time"].as_u64())
+}
+
+/// Whether a trial, now at `steps` from a run started at `started` by `commits`, started
+/// again from zero since its ledger row `old`: its steps went back (its run directory is
+/// gone), or its run is another start than the row's — a later start time, or, for a row
+/// written before start times were recorded, another first commit.
+fn restarted(old: &LedgerRow, steps: u64, started: Option<u64>, commits: &[String]) -> bool {
+    steps < old.steps
+        || match (old.started, started) {
+            (Some(then), Some(now)) => then != now,
+            (None, Some(_)) => old
+                .commits
+                .first()
+                .is_some_and(|c| Some(c) != commits.first()),
+            _ => false,
+        }
+}
+
 /// The ledger now, from the trials' result files and run directories and the ledger before
 /// (its restart counts, and steps to compare with).
 fn ledger(sweep: &Sweep, before: &Ledger) -> Result<Ledger> {
@@ -240,16 +269,16 @@ fn ledger(sweep: &Sweep, before: &Ledger) -> Result<Ledger> {
         let old = before.trials.iter().find(|r| r.trial == t.id);
         let result = sweep.results.join(format!("{}.json", t.id));
         let run = RunDir::new(&t.run_dir);
-        let (status, steps, commits) = if result.exists() {
+        let (status, steps, versions) = if result.exists() {
             let r: TrialResult = read_json(&result)?;
-            ("finished", r.steps, unique_commits(&r.versions))
+            ("finished", r.steps, r.versions)
         } else if let Ok(summary) = run.read_summary() {
-            let versions = run_record(&run)?.versions;
-            ("in progress", summary.steps, unique_commits(&versions))
+            ("in progress", summary.steps, run_record(&run)?.versions)
         } else {
             ("not started", 0, Vec::new())
         };
-        let went_back = old.is_some_and(|o| steps < o.steps);
+        let (commits, started) = (unique_commits(&versions), start_time(&versions));
+        let again = old.is_some_and(|o| restarted(o, steps, started, &commits));
         trials.push(LedgerRow {
             trial: t.id.clone(),
             row: t.row.clone(),
@@ -258,7 +287,8 @@ fn ledger(sweep: &Sweep, before: &Ledger) -> Result<Ledger> {
             steps,
             budget: t.steps,
             commits,
-            restarts: old.map_or(0, |o| o.restarts) + u32::from(went_back),
+            restarts: old.map_or(0, |o| o.restarts) + u32::from(again),
+            started,
         });
     }
     Ok(Ledger {
@@ -313,4 +343,41 @@ pub(super) fn write_ledger(sweep: &Sweep) -> Result<PathBuf> {
             .with_context(|| format!("renaming {} to {}", partial.display(), p.display()))?;
     }
     Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(steps: u64, started: Option<u64>, commits: &[&str]) -> LedgerRow {
+        LedgerRow {
+            trial: "a-s0".into(),
+            row: "a".into(),
+            seed: 0,
+            status: "in progress".into(),
+            steps,
+            budget: 1000,
+            commits: commits.iter().map(|c| c.to_string()).collect(),
+            restarts: 0,
+            started,
+        }
+    }
+
+    #[test]
+    fn a_restart_is_seen_even_once_it_has_passed_the_lost_runs_steps() {
+        let c = |v: &[&str]| v.iter().map(|c| c.to_string()).collect::<Vec<_>>();
+        let old = row(500, Some(7), &["aaa"]);
+        // Resumed, on the same or another binary: the same start.
+        assert!(!restarted(&old, 600, Some(7), &c(&["aaa", "bbb"])));
+        // Lost: not started again yet, or started again and still behind, or already past.
+        assert!(restarted(&old, 0, None, &[]));
+        assert!(restarted(&old, 200, Some(9), &c(&["aaa"])));
+        assert!(restarted(&old, 700, Some(9), &c(&["aaa"])));
+        // A row written before start times: another first commit is another start.
+        let legacy = row(357, None, &["aaa"]);
+        assert!(restarted(&legacy, 400, Some(9), &c(&["bbb"])));
+        assert!(!restarted(&legacy, 400, Some(9), &c(&["aaa", "bbb"])));
+        // Counted when it was lost (steps went back to 0): its next start is not counted again.
+        assert!(!restarted(&row(0, None, &[]), 50, Some(9), &c(&["bbb"])));
+    }
 }
