@@ -228,7 +228,11 @@ fn unique_commits(versions: &[serde_json::Value]) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
     for v in versions {
         if let Some(c) = v["commit"].as_str() {
-            let c: String = c.chars().take(12).collect();
+            // The short hash, and `+dirty` for a binary built from changed files.
+            let mut c: String = c.chars().take(12).collect();
+            if v["commit"].as_str().is_some_and(|c| c.ends_with("+dirty")) {
+                c += "+dirty";
+            }
             if out.last() != Some(&c) {
                 out.push(c);
             }
@@ -361,6 +365,17 @@ mod tests {
             restarts: 0,
             started,
         }
+    }
+
+    #[test]
+    fn ledger_commits_are_short_and_keep_dirty() {
+        let v = |c: &str| serde_json::json!({ "commit": c });
+        let a = "0123456789abcdef0123";
+        let dirty = format!("{a}+dirty");
+        assert_eq!(
+            unique_commits(&[v(a), v(a), v(&dirty)]),
+            ["0123456789ab", "0123456789ab+dirty"]
+        );
     }
 
     #[test]
