@@ -227,10 +227,10 @@ pub struct Ledger {
 fn unique_commits(versions: &[serde_json::Value]) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
     for v in versions {
-        if let Some(c) = v["commit"].as_str() {
+        if let Some(full) = v["commit"].as_str() {
             // The short hash, and `+dirty` for a binary built from changed files.
-            let mut c: String = c.chars().take(12).collect();
-            if v["commit"].as_str().is_some_and(|c| c.ends_with("+dirty")) {
+            let mut c: String = full.chars().take(12).collect();
+            if full.ends_with("+dirty") {
                 c += "+dirty";
             }
             if out.last() != Some(&c) {
