@@ -45,10 +45,11 @@ const MAX_FILE_BYTES: u64 = 2 << 30;
 /// Injection settings of a training run (`off_policy.injection`).
 ///
 /// A share `initial_share` of the windows of every batch is drawn from the teacher episodes
-/// at the start; the share falls linearly to zero at `anneal_steps` environment steps. The
-/// teacher episodes may fill at most `max_fraction` of the replay (oldest injected episodes
-/// are dropped beyond it), and as the agent's own episodes come in they are evicted like any
-/// other old episode, so injected experience never dominates the buffer.
+/// at the start; the share falls linearly to zero at `anneal_steps` agent steps (the unit of
+/// `train.total_steps`: with an action repeat, each is several env frames). The
+/// teacher episodes sit in their own pool of at most `max_fraction` of the replay's capacity
+/// (oldest injected episodes are dropped beyond it) that the agent's own episodes never evict;
+/// once the share reaches 0 no batch draws from it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct InjectionConfig {
@@ -56,7 +57,7 @@ pub struct InjectionConfig {
     pub teachers: Vec<PathBuf>,
     /// Share of each batch's windows drawn from teacher episodes at step 0, in `[0, 1]`.
     pub initial_share: f64,
-    /// Environment step at which the share reaches 0 (linear annealing).
+    /// Agent step at which the share reaches 0 (linear annealing).
     pub anneal_steps: u64,
     /// Largest fraction of the replay capacity teacher episodes may occupy, in `(0, 1]`.
     #[serde(default = "default_max_fraction")]
@@ -68,7 +69,7 @@ fn default_max_fraction() -> f64 {
 }
 
 impl InjectionConfig {
-    /// Share of teacher windows at environment step `step`:
+    /// Share of teacher windows at agent step `step`:
     /// `initial_share * max(0, 1 - step / anneal_steps)`.
     pub fn share(&self, step: u64) -> f64 {
         if self.anneal_steps == 0 || step >= self.anneal_steps {

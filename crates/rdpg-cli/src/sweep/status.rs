@@ -198,6 +198,30 @@ fn eval(e: Option<(u64, f64)>) -> String {
     })
 }
 
+/// The "Left:" line: the core-hours the measured trials still need, and how many trials belong
+/// to rows with no measurement yet.
+fn left_line(left: &[Option<f64>], threads: usize) -> String {
+    // `Sum` of no floats is −0.0: start from +0.0 so a sweep with nothing measured prints 0.0.
+    let known = left.iter().flatten().fold(0.0, |a, s| a + s);
+    let unknown = left.iter().filter(|l| l.is_none()).count();
+    let measured = format!(
+        "{:.1} core-hours ({threads} thread(s) per trial) at the speeds measured in this sweep's \
+         own trials on this machine",
+        known * threads as f64 / 3600.0
+    );
+    let left = match (unknown, left.len() - unknown) {
+        (0, _) => measured,
+        (n, 0) => format!("{n} trial(s), of rows not measured yet (`--plan` estimates them)"),
+        (n, _) => format!(
+            "{measured}, plus {n} trial(s) of rows not measured yet (`--plan` estimates them)"
+        ),
+    };
+    format!(
+        "\nLeft: {left}. Wall and speeds are as the trials ran: on a machine shared with other \
+         work they include its share.\n"
+    )
+}
+
 /// The status report (what `--status` prints).
 pub(super) fn report(sweep: &Sweep) -> Result<String> {
     let trials = sweep
@@ -254,21 +278,7 @@ pub(super) fn report(sweep: &Sweep) -> Result<String> {
             },
         );
     }
-    let threads = sweep.file.threads as f64;
-    let known: f64 = left.iter().flatten().sum();
-    let unknown = left.iter().filter(|l| l.is_none()).count();
-    out += &format!(
-        "\nLeft: {:.1} core-hours ({} thread(s) per trial) at the speeds measured in this \
-         sweep's own trials on this machine{}. Wall and speeds are as the trials ran: on a \
-         machine shared with other work they include its share.\n",
-        known * threads / 3600.0,
-        sweep.file.threads,
-        if unknown > 0 {
-            format!(", plus {unknown} trial(s) of rows not measured yet (`--plan` estimates them)")
-        } else {
-            String::new()
-        },
-    );
+    out += &left_line(&left, sweep.file.threads);
     if let Some(eta) = trials
         .iter()
         .zip(&left)
@@ -344,5 +354,28 @@ mod tests {
         assert_eq!(left[4], Some(1500.0));
         assert_eq!(left[5], Some(2000.0));
         assert_eq!(left[6], None, "row c has no measurement");
+    }
+
+    #[test]
+    fn the_left_line_never_prints_a_negative_zero() {
+        let none = left_line(&[None, None], 1);
+        assert!(
+            none.starts_with("\nLeft: 2 trial(s), of rows not measured yet"),
+            "{none}"
+        );
+        let done = left_line(&[Some(0.0), Some(0.0)], 1);
+        assert!(
+            done.starts_with("\nLeft: 0.0 core-hours (1 thread"),
+            "{done}"
+        );
+        let both = left_line(&[Some(0.0), Some(3600.0), None], 2);
+        assert!(
+            both.starts_with("\nLeft: 2.0 core-hours (2 thread"),
+            "{both}"
+        );
+        assert!(
+            both.contains(", plus 1 trial(s) of rows not measured yet"),
+            "{both}"
+        );
     }
 }
