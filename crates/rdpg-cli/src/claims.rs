@@ -10,7 +10,10 @@
 //! A sweep that declares fewer than [`CI_MIN_SEEDS`] seeds gets no verdict but "unresolved": its
 //! rows resample too few seeds for a percentile interval (2 seeds give 3 distinct resamples
 //! of a row), and the results protocol reports the IQM interval from 3 seeds on.
-//! A claim holds when every one of its pairs holds.
+//! A claim holds when every one of its pairs holds. `sweep` may name several sweep files of
+//! the same budget (a recipe declared in a sweep of its own against a twin in another):
+//! each row is looked up in the one sweep that has it, and its seeds are those that sweep
+//! declares.
 //!
 //! ```toml
 //! [[claim]]
@@ -61,12 +64,30 @@ struct Claim {
     claim: String,
     /// The paper's evidence for it.
     paper: String,
-    /// The sweep file whose rows measure it.
-    sweep: PathBuf,
+    /// The sweep file whose rows measure it, or a list of sweep files of the same budget
+    /// whose row names do not repeat.
+    sweep: Sweeps,
     /// Rows claimed above `worse`.
     better: Vec<String>,
     /// The row claimed below each of `better`.
     worse: String,
+}
+
+/// One sweep file, or several.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum Sweeps {
+    One(PathBuf),
+    Many(Vec<PathBuf>),
+}
+
+impl Sweeps {
+    fn paths(&self) -> &[PathBuf] {
+        match self {
+            Sweeps::One(p) => std::slice::from_ref(p),
+            Sweeps::Many(v) => v,
+        }
+    }
 }
 
 /// Where one pair stands.
@@ -94,7 +115,8 @@ fn tests_of<'a>(rows: &'a [Row], row: &str) -> Vec<&'a [f64]> {
         .map_or_else(Vec::new, Row::tests)
 }
 
-fn measure(rows: &[Row], better: &str, worse: &str, declared: usize) -> Pair {
+/// `better − worse`, each row with the seeds its sweep declares.
+fn measure(rows: &[Row], (better, da): (&str, usize), (worse, db): (&str, usize)) -> Pair {
     let (a, b) = (tests_of(rows, better), tests_of(rows, worse));
     if a.is_empty() || b.is_empty() {
         return Pair {
@@ -103,9 +125,9 @@ fn measure(rows: &[Row], better: &str, worse: &str, declared: usize) -> Pair {
         };
     }
     let (d, lo, hi) = iqm_difference(&a, &b, RESAMPLES, &mut NpRng::from_seed(0));
-    let verdict = if a.len() < declared || b.len() < declared {
+    let verdict = if a.len() < da || b.len() < db {
         Verdict::Pending
-    } else if declared < CI_MIN_SEEDS {
+    } else if da.min(db) < CI_MIN_SEEDS {
         Verdict::TooFewSeeds
     } else if lo > 0.0 {
         Verdict::Holds
@@ -127,14 +149,12 @@ fn measure(rows: &[Row], better: &str, worse: &str, declared: usize) -> Pair {
 }
 
 /// The claim's rows that have not run every declared seed: `"ddpg 0 of 3 seeds"`.
-fn waiting(rows: &[Row], claim: &Claim, declared: usize) -> Vec<String> {
-    claim
-        .better
+fn waiting(rows: &[Row], declared: &[(&str, usize)]) -> Vec<String> {
+    declared
         .iter()
-        .chain([&claim.worse])
-        .filter_map(|n| {
+        .filter_map(|&(n, d)| {
             let done = tests_of(rows, n).len();
-            (done < declared).then(|| format!("{n} {done} of {declared} seeds"))
+            (done < d).then(|| format!("{n} {done} of {d} seeds"))
         })
         .collect()
 }
@@ -182,40 +202,94 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
         if c.better.is_empty() {
             bail!("claim {:?}: `better` names no row", c.claim);
         }
-        let sweep = Sweep::load(&c.sweep).with_context(|| format!("claim {:?}", c.claim))?;
+        let sweeps = c
+            .sweep
+            .paths()
+            .iter()
+            .map(|p| Sweep::load(p).with_context(|| format!("claim {:?}", c.claim)))
+            .collect::<Result<Vec<_>>>()?;
+        if sweeps.is_empty() {
+            bail!("claim {:?}: `sweep` names no sweep file", c.claim);
+        }
+        if let Some(s) = sweeps.iter().find(|s| s.file.steps != sweeps[0].file.steps) {
+            bail!(
+                "claim {:?}: sweeps {} ({} agent steps) and {} ({}) have different budgets; \
+                 a claim compares rows at an equal budget",
+                c.claim,
+                sweeps[0].file.name,
+                sweeps[0].file.steps,
+                s.file.name,
+                s.file.steps
+            );
+        }
+        // Each named row, with the seeds its own sweep declares.
+        let mut declared: Vec<(&str, usize)> = Vec::new();
         for row in c.better.iter().chain([&c.worse]) {
-            if !sweep.trials.iter().any(|t| &t.row == row) {
-                bail!(
-                    "claim {:?}: sweep {} has no row {row:?}",
+            let holders: Vec<&Sweep> = sweeps
+                .iter()
+                .filter(|s| s.trials.iter().any(|t| &t.row == row))
+                .collect();
+            match holders[..] {
+                [s] => declared.push((row, s.file.seeds.len())),
+                [] => bail!(
+                    "claim {:?}: no row {row:?} in {}",
                     c.claim,
-                    c.sweep.display()
-                );
+                    c.sweep
+                        .paths()
+                        .iter()
+                        .map(|p| p.display().to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+                _ => bail!(
+                    "claim {:?}: row {row:?} is in more than one of its sweeps ({})",
+                    c.claim,
+                    holders
+                        .iter()
+                        .map(|s| s.file.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
             }
         }
-        let rows = if has_results(&sweep.results) {
-            load_rows(std::slice::from_ref(&sweep.results))?
-        } else {
-            Vec::new()
-        };
-        let declared = sweep.file.seeds.len();
-        let pairs: Vec<Pair> = c
-            .better
+        let dirs: Vec<PathBuf> = sweeps
             .iter()
-            .map(|b| measure(&rows, b, &c.worse, declared))
+            .map(|s| s.results.clone())
+            .filter(|d| has_results(d))
             .collect();
-        let table = sweep.results.join("table.md");
+        let rows = if dirs.is_empty() {
+            Vec::new()
+        } else {
+            load_rows(&dirs)?
+        };
+        let worse = *declared.last().expect("the worse row is pushed last");
+        let pairs: Vec<Pair> = declared[..declared.len() - 1]
+            .iter()
+            .map(|&b| measure(&rows, b, worse))
+            .collect();
+        let fewest = declared.iter().map(|d| d.1).min().unwrap_or(0);
+        let links = sweeps
+            .iter()
+            .map(|s| {
+                format!(
+                    "[{}]({})",
+                    s.file.name,
+                    s.results.join("table.md").display()
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | [{}]({}) |",
+            "| {} | {} | {} | {} | {links} |",
             c.claim,
             c.paper,
-            measured(&pairs, &waiting(&rows, c, declared)),
-            overall(&pairs, declared),
-            sweep.file.name,
-            table.display(),
+            measured(&pairs, &waiting(&rows, &declared)),
+            overall(&pairs, fewest),
         );
     }
-    md += "\nEach claim as orderings of a sweep's rows (`better − worse`): the difference of the \
+    md += "\nEach claim as orderings of a sweep's rows, or of the rows of sweeps of one budget \
+           (`better − worse`): the difference of the \
            interquartile means of their stock-reward tests (each seed's first 100 test \
            episodes, pooled), its 95 % CI a percentile bootstrap over seeds. Holds: every \
            interval above 0; does not hold: one below 0; unresolved: otherwise, once every \

@@ -1995,7 +1995,8 @@ fn committed_tables_regenerate_from_their_result_files() {
 /// `rdpg claims`: a claim's verdict follows the CI of its IQM difference (the committed Table I
 /// rows: injection above RDPG holds, the reverse ordering does not hold), and a sweep of 2
 /// seeds gets none (fig6-bptt: its interval excludes 0, yet 2 seeds cannot decide); a row the
-/// sweep does not have and an unknown key are refused by name.
+/// sweep does not have and an unknown key are refused by name. A claim across sweeps compares
+/// rows of one budget, each named row in exactly one of them.
 #[test]
 fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
@@ -2048,6 +2049,39 @@ fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
     fails(
         &mut run(&(claim("rdpg", "ddpg") + "seed = 3\n")),
         &["unknown field `seed`"],
+    );
+    // Rows of two sweeps of one budget: Table I's RDPG against the feed-forward recipe
+    // declared in a sweep of its own (every seed of both has run).
+    let across = |sweeps: &str, better: &str, worse: &str| {
+        format!(
+            "[[claim]]\nclaim = \"c\"\npaper = \"p\"\nsweep = [{sweeps}]\n\
+             better = [\"{better}\"]\nworse = \"{worse}\"\n"
+        )
+    };
+    let table1 = r#""sweeps/table1-cpu.toml", "sweeps/table1-cpu-recipes.toml""#;
+    let out = String::from_utf8(ok(&mut run(&across(table1, "td3-paper", "rdpg"))).stdout).unwrap();
+    let line = out.lines().find(|l| l.starts_with("| c |")).unwrap();
+    assert!(line.contains("td3-paper − rdpg: +"), "{line}");
+    assert!(line.contains("| **holds** |"), "{line}");
+    assert!(
+        line.contains("[table1-cpu](results/table1-cpu/table.md), [table1-cpu-recipes]"),
+        "{line}"
+    );
+    fails(
+        &mut run(&across(
+            r#""sweeps/hardcore-1m.toml", "sweeps/table1-cpu-recipes.toml""#,
+            "rdpg-l128",
+            "td3-paper",
+        )),
+        &["different budgets", "hardcore-1m (1000000 agent steps)"],
+    );
+    fails(
+        &mut run(&across(
+            r#""sweeps/hardcore-1m.toml", "sweeps/hardcore-1m.toml""#,
+            "rdpg-paper",
+            "td3-paper",
+        )),
+        &["row \"rdpg-paper\" is in more than one of its sweeps"],
     );
 }
 
