@@ -10,10 +10,10 @@
 //! A sweep that declares fewer than [`CI_MIN_SEEDS`] seeds gets no verdict but "unresolved": its
 //! rows resample too few seeds for a percentile interval (2 seeds give 3 distinct resamples
 //! of a row), and the results protocol reports the IQM interval from 3 seeds on.
-//! A claim holds when every one of its pairs holds. `sweep` may name several sweep files of
-//! the same budget (a recipe declared in a sweep of its own against a twin in another):
-//! each row is looked up in the one sweep that has it, and its seeds are those that sweep
-//! declares.
+//! A claim holds when every one of its pairs holds, and compares rows of one budget in env
+//! frames (agent steps times the action repeat). `sweep` may name several sweep files (a
+//! recipe declared in a sweep of its own against a twin in another): each row is looked up
+//! in the one sweep that has it, and its seeds are those that sweep declares.
 //!
 //! ```toml
 //! [[claim]]
@@ -32,7 +32,7 @@ use clap::Args;
 use rdpg_core::rng::NpRng;
 use serde::Deserialize;
 
-use crate::sweep::Sweep;
+use crate::sweep::{Sweep, Trial};
 use crate::table::{iqm_difference, load_rows, seeds_word, Row, CI_MIN_SEEDS};
 
 /// Arguments of `rdpg claims`.
@@ -64,8 +64,8 @@ struct Claim {
     claim: String,
     /// The paper's evidence for it.
     paper: String,
-    /// The sweep file whose rows measure it, or a list of sweep files of the same budget
-    /// whose row names do not repeat.
+    /// The sweep file whose rows measure it, or a list of sweep files in which each of the
+    /// claim's rows is found once.
     sweep: Sweeps,
     /// Rows claimed above `worse`.
     better: Vec<String>,
@@ -211,26 +211,20 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
         if sweeps.is_empty() {
             bail!("claim {:?}: `sweep` names no sweep file", c.claim);
         }
-        if let Some(s) = sweeps.iter().find(|s| s.file.steps != sweeps[0].file.steps) {
-            bail!(
-                "claim {:?}: sweeps {} ({} agent steps) and {} ({}) have different budgets; \
-                 a claim compares rows at an equal budget",
-                c.claim,
-                sweeps[0].file.name,
-                sweeps[0].file.steps,
-                s.file.name,
-                s.file.steps
-            );
-        }
         // Each named row, with the seeds its own sweep declares.
         let mut declared: Vec<(&str, usize)> = Vec::new();
+        let mut budgets: Vec<(&str, u64)> = Vec::new();
         for row in c.better.iter().chain([&c.worse]) {
             let holders: Vec<&Sweep> = sweeps
                 .iter()
                 .filter(|s| s.trials.iter().any(|t| &t.row == row))
                 .collect();
             match holders[..] {
-                [s] => declared.push((row, s.file.seeds.len())),
+                [s] => {
+                    let frames = s.trials.iter().find(|t| &t.row == row).map(Trial::frames);
+                    budgets.push((row, frames.unwrap_or(0)));
+                    declared.push((row, s.file.seeds.len()));
+                }
                 [] => bail!(
                     "claim {:?}: no row {row:?} in {}",
                     c.claim,
@@ -251,6 +245,15 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
                         .join(", ")
                 ),
             }
+        }
+        if let Some((row, frames)) = budgets.iter().find(|b| b.1 != budgets[0].1) {
+            bail!(
+                "claim {:?}: row {:?} trains {} env frames and row {row:?} {frames}; a claim \
+                 compares rows at an equal budget",
+                c.claim,
+                budgets[0].0,
+                budgets[0].1
+            );
         }
         let dirs: Vec<PathBuf> = sweeps
             .iter()

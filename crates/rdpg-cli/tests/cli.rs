@@ -2071,9 +2071,9 @@ fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
         &mut run(&across(
             r#""sweeps/hardcore-1m.toml", "sweeps/table1-cpu-recipes.toml""#,
             "rdpg-l128",
-            "td3-paper",
+            "rdpg-paper",
         )),
-        &["different budgets", "hardcore-1m (1000000 agent steps)"],
+        &["row \"rdpg-l128\" trains 1500000 env frames and row \"rdpg-paper\" 3000000"],
     );
     fails(
         &mut run(&across(

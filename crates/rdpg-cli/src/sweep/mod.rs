@@ -197,6 +197,13 @@ pub struct Trial {
     paper: Option<PaperRow>,
 }
 
+impl Trial {
+    /// Budget in env frames: agent steps times the trial's action repeat.
+    pub fn frames(&self) -> u64 {
+        self.steps * self.exp.train.action_repeat as u64
+    }
+}
+
 /// A parsed and checked sweep: every trial's experiment resolved.
 pub struct Sweep {
     /// The file.
