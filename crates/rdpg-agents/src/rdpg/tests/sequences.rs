@@ -204,6 +204,38 @@ fn burn_in_starts_the_actor_scan_from_the_stored_state() {
     }
 }
 
+/// A teacher episode's stored states (`episode_states`, computed when a teacher file loads) are
+/// the states the student's actor carries before each step when it acts along the episode from
+/// its start: what its own episodes store.
+#[test]
+fn teacher_episode_states_are_the_acting_states() {
+    let agent = RdpgAgent::new_with_kind(tiny(), OBS, ACT, 7, Kind::Double).unwrap();
+    let (steps, n) = (9, 7);
+    let mut rng = NpRng::from_seed(3);
+    let obs: Vec<f32> = (0..steps * OBS)
+        .map(|_| rng.normal(0.0, 1.0) as f32)
+        .collect();
+    let mut state = agent.initial_state(1);
+    let mut acting = Vec::new();
+    for t in 0..n {
+        acting.extend(state.env_state(0));
+        agent.act(&obs[t * OBS..(t + 1) * OBS], &mut state).unwrap();
+    }
+    let stored = agent.episode_states(&obs, n).unwrap();
+    assert_eq!(
+        stored.len(),
+        n * 2 * 4,
+        "[n, h and c of the actor's 4 units]"
+    );
+    let f64s = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<_>>();
+    assert_close(&f64s(&stored), &f64s(&acting), 1e-6, "states");
+    assert!(stored.iter().skip(2 * 4).any(|&x| x != 0.0), "past step 0");
+    assert!(
+        agent.episode_states(&obs, steps + 1).is_err(),
+        "more steps than observations"
+    );
+}
+
 /// R2D2's "stored state, no burn-in": with `scan_len = 0` and stored states the actor's run
 /// along the window starts from the stored state (not from zeros), so the bootstrap action
 /// is the actor's output after the window from that state.
