@@ -22,6 +22,8 @@ use rdpg_render::save_png;
 use crate::rundir::{read_json, RunDir, TestSummary};
 use crate::sweep::TrialResult;
 
+mod trials;
+
 /// Arguments of `rdpg table`.
 #[derive(Debug, Args)]
 pub struct TableArgs {
@@ -50,7 +52,8 @@ const DEFAULT_RESAMPLES: usize = 10_000;
 /// Episodes of the stock-reward test.
 const STOCK_TEST_EPISODES: usize = 100;
 
-fn read_inputs(inputs: &[PathBuf]) -> Result<Vec<TrialResult>> {
+/// Every trial of `inputs`, each with the position of the input that held it.
+fn read_inputs(inputs: &[PathBuf]) -> Result<Vec<(usize, TrialResult)>> {
     let mut out = Vec::new();
     for (k, p) in inputs.iter().enumerate() {
         if p.extension().is_some_and(|e| e == "toml") {
@@ -61,11 +64,11 @@ fn read_inputs(inputs: &[PathBuf]) -> Result<Vec<TrialResult>> {
                     p.display()
                 )
             })?;
-            out.extend(got);
+            out.extend(got.into_iter().map(|(_, t)| (k, t)));
         } else if p.is_file() {
-            out.push(read_json(p)?);
+            out.push((k, read_json(p)?));
         } else if p.join("summary.json").exists() && p.join("config.toml").exists() {
-            out.push(from_run(p, k)?);
+            out.push((k, from_run(p, k)?));
         } else if p.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(p)
                 .with_context(|| format!("reading {}", p.display()))?
@@ -84,7 +87,7 @@ fn read_inputs(inputs: &[PathBuf]) -> Result<Vec<TrialResult>> {
                 );
             }
             for f in files {
-                out.push(read_json(&f)?);
+                out.push((k, read_json(&f)?));
             }
         } else {
             bail!("{}: no such result file, folder or run", p.display());
@@ -171,28 +174,41 @@ pub(crate) struct Row {
 }
 
 /// The trials of `inputs` (result files, folders of them, sweep files or run directories)
-/// grouped into rows, each row's trials by seed, the rows in the sweep's order.
+/// grouped into rows, each row's trials by seed, the rows in the order of the inputs and,
+/// within one input, in its sweep's order.
 pub(crate) fn load_rows(inputs: &[PathBuf]) -> Result<Vec<Row>> {
-    let mut rows: Vec<Row> = Vec::new();
-    for t in read_inputs(inputs)? {
-        match rows.iter_mut().find(|r| r.name == t.row) {
-            Some(r) => {
+    // (first input holding the row, its index in that sweep, the row)
+    let mut rows: Vec<(usize, usize, Row)> = Vec::new();
+    let trials = read_inputs(inputs)?;
+    for (input, t) in trials {
+        match rows.iter_mut().find(|(_, _, r)| r.name == t.row) {
+            Some((first, index, r)) => {
                 if r.trials.iter().any(|x| x.seed == t.seed) {
                     bail!("row {:?} has seed {} twice", t.row, t.seed);
                 }
+                if (input, t.row_index) < (*first, *index) {
+                    (*first, *index) = (input, t.row_index);
+                }
                 r.trials.push(t);
             }
-            None => rows.push(Row {
-                name: t.row.clone(),
-                trials: vec![t],
-            }),
+            None => rows.push((
+                input,
+                t.row_index,
+                Row {
+                    name: t.row.clone(),
+                    trials: vec![t],
+                },
+            )),
         }
     }
-    for r in &mut rows {
-        r.trials.sort_by_key(|t| t.seed);
-    }
-    rows.sort_by_key(|r| r.trials.iter().map(|t| t.row_index).min());
-    Ok(rows)
+    rows.sort_by_key(|&(input, index, _)| (input, index));
+    Ok(rows
+        .into_iter()
+        .map(|(_, _, mut r)| {
+            r.trials.sort_by_key(|t| t.seed);
+            r
+        })
+        .collect())
 }
 
 /// The fewest seeds whose percentile bootstrap over seeds gives a confidence interval: one
@@ -287,9 +303,15 @@ pub fn run(a: &TableArgs) -> Result<()> {
         );
     }
     let mut md = String::new();
-    let first = &rows[0].trials[0];
-    if !first.sweep.is_empty() {
-        let _ = writeln!(md, "Sweep `{}`. {}\n", first.sweep, first.description);
+    // Each sweep the rows come from, once, in the rows' order.
+    let mut sweeps: Vec<&TrialResult> = Vec::new();
+    for t in rows.iter().flat_map(|r| &r.trials) {
+        if !t.sweep.is_empty() && sweeps.iter().all(|s| s.sweep != t.sweep) {
+            sweeps.push(t);
+        }
+    }
+    for t in sweeps {
+        let _ = writeln!(md, "Sweep `{}`. {}\n", t.sweep, t.description);
     }
     // Success over the first `n_success` test episodes of every seed: the paper's 200 where
     // every test ran that many, else as many as every test ran.
@@ -464,6 +486,8 @@ pub fn run(a: &TableArgs) -> Result<()> {
         md += "\n";
         md += &t;
     }
+    md += "\n";
+    md += &trials::trial_table(&rows);
     let mut command = String::from("rdpg table");
     for i in &a.inputs {
         command += &format!(" {}", i.display());
