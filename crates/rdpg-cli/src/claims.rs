@@ -213,7 +213,8 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
         }
         // Each named row, with the seeds its own sweep declares.
         let mut declared: Vec<(&str, usize)> = Vec::new();
-        let mut budgets: Vec<(&str, u64)> = Vec::new();
+        // The first row's budget in env frames, which every other row must train too.
+        let mut budget: Option<(&str, u64)> = None;
         for row in c.better.iter().chain([&c.worse]) {
             let holders: Vec<&Sweep> = sweeps
                 .iter()
@@ -221,8 +222,20 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
                 .collect();
             match holders[..] {
                 [s] => {
-                    let frames = s.trials.iter().find(|t| &t.row == row).map(Trial::frames);
-                    budgets.push((row, frames.unwrap_or(0)));
+                    let frames = s
+                        .trials
+                        .iter()
+                        .find(|t| &t.row == row)
+                        .map_or(0, Trial::frames);
+                    match budget {
+                        Some((first, f)) if f != frames => bail!(
+                            "claim {:?}: row {first:?} trains {f} env frames and row {row:?} \
+                             {frames}; a claim compares rows at an equal budget",
+                            c.claim
+                        ),
+                        Some(_) => {}
+                        None => budget = Some((row, frames)),
+                    }
                     declared.push((row, s.file.seeds.len()));
                 }
                 [] => bail!(
@@ -245,15 +258,6 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
                         .join(", ")
                 ),
             }
-        }
-        if let Some((row, frames)) = budgets.iter().find(|b| b.1 != budgets[0].1) {
-            bail!(
-                "claim {:?}: row {:?} trains {} env frames and row {row:?} {frames}; a claim \
-                 compares rows at an equal budget",
-                c.claim,
-                budgets[0].0,
-                budgets[0].1
-            );
         }
         let dirs: Vec<PathBuf> = sweeps
             .iter()
