@@ -216,17 +216,14 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
         // The first row's budget in env frames, which every other row must train too.
         let mut budget: Option<(&str, u64)> = None;
         for row in c.better.iter().chain([&c.worse]) {
-            let holders: Vec<&Sweep> = sweeps
+            // Each sweep holding the row, with one of the row's trials.
+            let holders: Vec<(&Sweep, &Trial)> = sweeps
                 .iter()
-                .filter(|s| s.trials.iter().any(|t| &t.row == row))
+                .filter_map(|s| Some((s, s.trials.iter().find(|t| &t.row == row)?)))
                 .collect();
             match holders[..] {
-                [s] => {
-                    let frames = s
-                        .trials
-                        .iter()
-                        .find(|t| &t.row == row)
-                        .map_or(0, Trial::frames);
+                [(s, trial)] => {
+                    let frames = trial.frames();
                     match budget {
                         Some((first, f)) if f != frames => bail!(
                             "claim {:?}: row {first:?} trains {f} env frames and row {row:?} \
@@ -253,7 +250,7 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
                     c.claim,
                     holders
                         .iter()
-                        .map(|s| s.file.name.as_str())
+                        .map(|(s, _)| s.file.name.as_str())
                         .collect::<Vec<_>>()
                         .join(", ")
                 ),

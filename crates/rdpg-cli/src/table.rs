@@ -253,13 +253,16 @@ pub(crate) fn iqm_difference(
 impl Row {
     /// Each seed's stock-test returns (the first 100 test episodes).
     pub(crate) fn tests(&self) -> Vec<&[f64]> {
-        self.trials
-            .iter()
-            .filter_map(|t| t.test())
-            .map(|t| &t.returns[..t.returns.len().min(STOCK_TEST_EPISODES)])
-            .filter(|r| !r.is_empty())
-            .collect()
+        self.trials.iter().filter_map(stock_returns).collect()
     }
+}
+
+/// A trial's stock-test returns: its chosen agent's first 100 test episodes (`None` without
+/// a test that recorded its episodes).
+fn stock_returns(t: &TrialResult) -> Option<&[f64]> {
+    let x = t.test()?;
+    let first = &x.returns[..x.returns.len().min(STOCK_TEST_EPISODES)];
+    (!first.is_empty()).then_some(first)
 }
 
 fn mean_std(xs: &[f64]) -> (f64, f64) {
@@ -687,6 +690,37 @@ mod tests {
         assert!(lo < iqm(&whole) && iqm(&whole) < hi, "{lo} {hi}");
         let (lo2, hi2) = bootstrap_ci(&[&a, &a], 2000, &mut rng, &iqm);
         assert_eq!((lo2, hi2), (iqm(&a), iqm(&a)));
+    }
+
+    /// Rows from several inputs come in the order of the inputs, then of their sweeps; a row
+    /// in two inputs gathers its seeds from both and stands where it first appears.
+    #[test]
+    fn rows_follow_their_inputs_then_their_sweeps() {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let base: TrialResult =
+            read_json(&root.join("results/hardcore-1m/td3-paper-s0.json")).unwrap();
+        let dir = std::env::temp_dir().join(format!("rdpg-table-inputs-{}", std::process::id()));
+        let inputs = [dir.join("a"), dir.join("b")];
+        // (input, row, its index in that sweep, seed)
+        for (input, row, row_index, seed) in [
+            (0, "x", 1, 0),
+            (0, "y", 0, 0),
+            (1, "z", 0, 0),
+            (1, "x", 0, 1),
+        ] {
+            let mut t = base.clone();
+            (t.row, t.row_index, t.seed) = (row.into(), row_index, seed);
+            std::fs::create_dir_all(&inputs[input]).unwrap();
+            let file = inputs[input].join(format!("{row}-s{seed}.json"));
+            std::fs::write(file, serde_json::to_string(&t).unwrap()).unwrap();
+        }
+        let rows = load_rows(&inputs).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let got: Vec<(&str, Vec<u64>)> = rows
+            .iter()
+            .map(|r| (r.name.as_str(), r.trials.iter().map(|t| t.seed).collect()))
+            .collect();
+        assert_eq!(got, [("y", vec![0]), ("x", vec![0, 1]), ("z", vec![0])]);
     }
 
     /// The obstacle table sums each row's seeds that recorded where their test episodes

@@ -283,7 +283,7 @@ pub fn zoo_table(dir: &Path) -> Result<String> {
 }
 
 /// `62 min`, `3.1 h`: a wall-clock time as the tables write it.
-fn wall(seconds: f64) -> String {
+pub(crate) fn wall(seconds: f64) -> String {
     if seconds < 5400.0 {
         format!("{:.0} min", seconds / 60.0)
     } else {
