@@ -179,8 +179,7 @@ pub(crate) struct Row {
 pub(crate) fn load_rows(inputs: &[PathBuf]) -> Result<Vec<Row>> {
     // (first input holding the row, its index in that sweep, the row)
     let mut rows: Vec<(usize, usize, Row)> = Vec::new();
-    let trials = read_inputs(inputs)?;
-    for (input, t) in trials {
+    for (input, t) in read_inputs(inputs)? {
         match rows.iter_mut().find(|(_, _, r)| r.name == t.row) {
             Some((first, index, r)) => {
                 if r.trials.iter().any(|x| x.seed == t.seed) {
