@@ -292,7 +292,7 @@ pub(crate) fn wall(seconds: f64) -> String {
 }
 
 /// `375k`, `1.975M`: a step count as the tables write it.
-fn steps_k(n: u64) -> String {
+pub(crate) fn steps_k(n: u64) -> String {
     if n >= 1_000_000 {
         format!("{}M", n as f64 / 1e6)
     } else if n >= 1000 {

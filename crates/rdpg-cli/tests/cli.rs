@@ -1531,6 +1531,26 @@ fn sweep_files_are_checked_and_planned() {
             "steps = 100\n[[row]]\nname = \"a\"\nset = [\"train.test_episodes=0\"]\n",
             &["row \"a\"", "train.test_episodes = 0", "each trial's test"][..],
         ),
+        (
+            "steps = 100\nframes = 300\n[[row]]\nname = \"a\"\n",
+            &["`steps` (agent steps) or `frames` (env frames), one of them"][..],
+        ),
+        (
+            "[[row]]\nname = \"a\"\n",
+            &["`steps` (agent steps) or `frames` (env frames), one of them"][..],
+        ),
+        (
+            "frames = 100\n[[row]]\nname = \"a\"\nset = [\"train.action_repeat=3\"]\n",
+            &[
+                "row \"a\"",
+                "frames = 100 is no whole number of agent steps",
+                "repeat 3",
+            ][..],
+        ),
+        (
+            "tuning = true\nsteps = 100\n[[row]]\nname = \"a\"\n",
+            &["tuning seeds (10 and up", "not seed 0"][..],
+        ),
     ] {
         write(body);
         fails(&mut sweep(), needles);
@@ -1572,6 +1592,99 @@ fn sweep_files_are_checked_and_planned() {
     assert!(rows
         .iter()
         .all(|r| r["core_hours_per_trial"].as_f64().unwrap() > 0.0));
+    // A budget in frames: each row's agent steps at its own action repeat.
+    write(concat!(
+        "frames = 600\n",
+        "[[row]]\nname = \"r3\"\nset = [\"train.action_repeat=3\"]\n",
+        "[[row]]\nname = \"r2\"\nset = [\"train.action_repeat=2\"]\n",
+    ));
+    let plan: Value = serde_json::from_slice(&ok(&mut sweep()).stdout).unwrap();
+    let budgets: Vec<(u64, u64)> = plan["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| {
+            let s = &r["settings"];
+            (
+                s["total_steps"].as_u64().unwrap(),
+                s["frames"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(budgets, [(200, 600), (300, 600)]);
+}
+
+/// A tuning sweep on Ray: its trial finishes at its budget without a test (the test seeds stay
+/// closed), and `--collect` writes its validation curve and table, and a result file without
+/// a test; the sweep, rerun, starts nothing.
+#[test]
+fn a_tuning_sweep_never_opens_the_test_seeds() {
+    let python = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
+    assert!(
+        python.exists(),
+        "run the README's set-up first (it makes .venv)"
+    );
+    let dir = tmp("sweep-tuning");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        dir.join("t.toml"),
+        format!(
+            concat!(
+                "base = {:?}\nseeds = [10]\nsteps = 800\ntuning = true\n",
+                "description = \"the cue task, 800 steps\"\n",
+                "set = [\"train.eval_every=200\", \"train.eval_episodes=5\"]\n",
+                "[[row]]\nname = \"rdpg\"\n",
+            ),
+            configs_dir().join("cue-rdpg.toml").display().to_string()
+        ),
+    )
+    .unwrap();
+    let sweep = || {
+        let mut c = rdpg();
+        c.current_dir(&dir)
+            .args(["sweep", "t.toml", "--cpus", "1", "--python"])
+            .arg(&python);
+        c
+    };
+    let last_line = |out: std::process::Output| -> Value {
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        serde_json::from_str(text.lines().last().unwrap()).unwrap()
+    };
+    let end = last_line(ok(&mut sweep()));
+    assert_eq!(end["finished"].as_u64(), Some(1), "{end}");
+    let summary = json_file(&dir.join("runs/sweeps/t/trials/rdpg-s10/summary.json"));
+    assert_eq!(summary["steps"], 800);
+    assert!(summary["test_eval"].is_null(), "a tuning trial was tested");
+    // The driver collected it: a result file without a test, the curve and the table.
+    let result = json_file(&dir.join("results/t/rdpg-s10.json"));
+    assert!(result["summary"]["test_eval"].is_null());
+    assert_eq!(result["curve"].as_array().unwrap().len(), 4);
+    let csv = std::fs::read_to_string(dir.join("results/t/rdpg-s10-evals.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 5, "{csv}");
+    let table = std::fs::read_to_string(dir.join("results/t/validation.md")).unwrap();
+    assert!(table.contains("the cue task, 800 steps"), "{table}");
+    let line = table
+        .lines()
+        .find(|l| l.starts_with("| rdpg-s10 | 800 / 800 |"))
+        .unwrap_or_else(|| panic!("no line for the trial: {table}"));
+    // Eight marks at 100-step spacing, validations every 200: a value at 200, 400, 600, 800
+    // and the point before it between them; nothing before the first validation.
+    let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+    assert_eq!(cells[3], "", "{line}");
+    assert!(
+        cells[4..11].iter().all(|c| c.parse::<f64>().is_ok()),
+        "{line}"
+    );
+    assert_eq!(cells[4], cells[5], "{line}");
+    // Rerun, the finished trial does not run again.
+    let end = last_line(ok(&mut sweep()));
+    assert_eq!(end["finished"].as_u64(), Some(1), "{end}");
+    let status = ok(rdpg()
+        .current_dir(&dir)
+        .args(["sweep", "t.toml", "--status"]));
+    let status = String::from_utf8_lossy(&status.stdout).to_string();
+    assert!(status.contains("| rdpg-s10 | finished |"), "{status}");
 }
 
 /// The processes whose command line names `needle` (Linux: read from /proc).

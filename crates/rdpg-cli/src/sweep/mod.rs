@@ -10,6 +10,8 @@
 //! resumes or skips each trial. `--collect` writes each finished trial's small result file
 //! under the sweep's `results` folder (what `rdpg table` reads and what gets committed), and
 //! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`results::Ledger`]);
+//! A tuning sweep (`tuning = true`) never opens its trials' test seeds: `--collect` writes
+//! their validation curves and a validation table instead (`validation.rs`).
 //! `--status` tells where a running or stopped sweep stands (`status.rs`); `--stop` stops a
 //! running one from any shell and waits until its trials have saved (`stop.rs`).
 //!
@@ -19,6 +21,8 @@
 //! base = "configs/hardcore-rdpg-cpu.toml"  # each row's base config unless it names its own
 //! seeds = [0, 1, 2]
 //! steps = 1000000                          # train.total_steps of every trial (agent steps)
+//! # frames = 3000000                       # or the budget in env frames: steps = frames / action repeat
+//! # tuning = true                          # tuning seeds (10+), no test: validation.md instead
 //! threads = 1                              # libtorch threads per trial
 //! set = ["train.test_episodes=200"]        # overrides for every row (before the row's)
 //! results = "results/table1-cpu"           # default: results/<name>
@@ -35,6 +39,7 @@
 mod results;
 mod status;
 mod stop;
+mod validation;
 
 use results::{collect, write_ledger};
 pub use results::{run_record, RunRecord, TrialResult};
@@ -102,8 +107,19 @@ pub struct SweepFile {
     pub base: Option<PathBuf>,
     /// Seeds of every row, declared before the runs.
     pub seeds: Vec<u64>,
-    /// Budget: `train.total_steps` of every trial (agent steps).
-    pub steps: u64,
+    /// Budget: `train.total_steps` of every trial (agent steps). Give this or `frames`.
+    pub steps: Option<u64>,
+    /// Budget in env frames instead: each trial gets `frames / action_repeat` agent steps
+    /// (its own action repeat; it must divide `frames`), so rows with different action
+    /// repeats compare at equal frames.
+    pub frames: Option<u64>,
+    /// A tuning sweep: its trials choose a recipe and are never results. Its seeds are tuning
+    /// seeds (10 and up: the results protocol keeps 0–9 for declared runs), every trial runs
+    /// with `train.test_episodes = 0` (the test seeds stay closed), and `--collect` writes the
+    /// trials' validation curves (`<trial>-evals.csv`, running trials included) and a
+    /// validation table (`validation.md`) beside the ledger.
+    #[serde(default)]
+    pub tuning: bool,
     /// libtorch threads per trial (`agent.num_threads` / `ppo.num_threads`).
     #[serde(default = "one")]
     pub threads: usize,
@@ -131,6 +147,18 @@ pub struct SweepFile {
 
 fn one() -> usize {
     1
+}
+
+/// The lowest tuning seed: the results protocol keeps the seeds below for declared runs.
+pub const TUNING_SEEDS: u64 = 10;
+
+/// A sweep's budget, as its file gives it.
+#[derive(Debug, Clone, Copy)]
+enum Budget {
+    /// Agent steps, every trial alike.
+    Steps(u64),
+    /// Env frames: agent steps times each trial's action repeat.
+    Frames(u64),
 }
 
 /// The order a sweep's trials start in (the table shows the rows in file order either way).
@@ -275,8 +303,36 @@ impl Sweep {
                 path.display()
             );
         }
-        if file.steps == 0 || file.threads == 0 {
-            bail!("{}: steps and threads must be positive", path.display());
+        let budget = match (file.steps, file.frames) {
+            (Some(steps), None) => Budget::Steps(steps),
+            (None, Some(frames)) => Budget::Frames(frames),
+            _ => bail!(
+                "{}: give the budget as `steps` (agent steps) or `frames` (env frames), one of \
+                 them",
+                path.display()
+            ),
+        };
+        if file.steps == Some(0) || file.frames == Some(0) || file.threads == 0 {
+            bail!(
+                "{}: the budget and threads must be positive",
+                path.display()
+            );
+        }
+        if file.tuning {
+            if let Some(s) = file.seeds.iter().find(|&&s| s < TUNING_SEEDS) {
+                bail!(
+                    "{}: a tuning sweep runs on tuning seeds ({TUNING_SEEDS} and up; the results \
+                     protocol keeps the ones below for declared runs), not seed {s}",
+                    path.display()
+                );
+            }
+            if file.keep_chosen_agents {
+                bail!(
+                    "{}: a tuning sweep keeps no agent (`keep_chosen_agents`): its trials are \
+                     never tested",
+                    path.display()
+                );
+            }
         }
         let mut seen = BTreeSet::new();
         for s in &file.seeds {
@@ -314,16 +370,32 @@ impl Sweep {
                     set.extend(grid_sets.iter().cloned());
                     set.extend(row.set.iter().cloned());
                     set.push(format!("train.seed={seed}"));
-                    set.push(format!("train.total_steps={}", file.steps));
                     let probe = Experiment::load(&base, &set)
                         .with_context(|| format!("row {name:?} (seed {seed})"))?;
+                    let steps = match budget {
+                        Budget::Steps(steps) => steps,
+                        Budget::Frames(frames) => {
+                            let repeat = probe.train.action_repeat as u64;
+                            if frames % repeat != 0 {
+                                bail!(
+                                    "row {name:?}: frames = {frames} is no whole number of agent \
+                                     steps at its action repeat {repeat}"
+                                );
+                            }
+                            frames / repeat
+                        }
+                    };
+                    set.push(format!("train.total_steps={steps}"));
                     set.push(match probe.algo {
                         Algo::Ppo => format!("ppo.num_threads={}", file.threads),
                         _ => format!("agent.num_threads={}", file.threads),
                     });
+                    if file.tuning {
+                        set.push("train.test_episodes=0".into());
+                    }
                     let exp = Experiment::load(&base, &set)
                         .with_context(|| format!("row {name:?} (seed {seed})"))?;
-                    if exp.train.test_episodes == 0 {
+                    if exp.train.test_episodes == 0 && !file.tuning {
                         bail!(
                             "row {name:?}: train.test_episodes = 0, but a sweep's tables need \
                              each trial's test"
@@ -338,7 +410,7 @@ impl Sweep {
                         seed,
                         base: base.clone(),
                         set,
-                        steps: file.steps,
+                        steps,
                         exp,
                         paper: row.paper.clone(),
                     });
@@ -355,6 +427,14 @@ impl Sweep {
             root,
             results,
         })
+    }
+
+    /// The budget as the file gives it.
+    fn budget(&self) -> Budget {
+        match (self.file.steps, self.file.frames) {
+            (_, Some(frames)) => Budget::Frames(frames),
+            (steps, None) => Budget::Steps(steps.unwrap_or_default()),
+        }
     }
 
     /// The rows in order, each with its first trial (all trials of a row share its settings
@@ -476,6 +556,11 @@ pub fn run(a: &SweepArgs) -> Result<()> {
         // keeps the committed one).
         if sweep.trials.iter().any(|t| t.run_dir.exists()) {
             println!("{}", write_ledger(&sweep)?.display());
+            if sweep.file.tuning {
+                for line in validation::write_validation(&sweep)? {
+                    println!("{line}");
+                }
+            }
         }
         return Ok(());
     }
@@ -516,6 +601,7 @@ pub fn run(a: &SweepArgs) -> Result<()> {
                 "row": t.row,
                 "seed": t.seed,
                 "steps": t.steps,
+                "tuning": sweep.file.tuning,
                 "run_dir": abs(&t.run_dir)?,
                 "result": abs(&sweep.results.join(format!("{}.json", t.id)))?,
                 "base": abs(&t.base)?,
@@ -575,6 +661,8 @@ fn print_plan(sweep: &Sweep) -> Result<()> {
         "description": sweep.file.description,
         "seeds": sweep.file.seeds,
         "steps": sweep.file.steps,
+        "frames": sweep.file.frames,
+        "tuning": sweep.file.tuning,
         "threads_per_trial": sweep.file.threads,
         "trials": sweep.trials.len(),
         "rows": rows,

@@ -100,7 +100,8 @@ pub(super) fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         let Ok(summary) = run.read_summary() else {
             continue;
         };
-        if summary.steps < t.steps || summary.test_eval.is_none() {
+        // A tuning trial is finished at its budget: it runs no test.
+        if summary.steps < t.steps || (summary.test_eval.is_none() && !sweep.file.tuning) {
             continue;
         }
         let RunRecord {

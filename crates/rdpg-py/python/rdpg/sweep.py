@@ -32,8 +32,9 @@ import time
 
 
 def _finished(trial: dict) -> dict | None:
-    """The trial's summary when it reached its budget and ran its test, else None: from its
-    run directory, or, where that is gone (another machine), from its committed result file
+    """The trial's summary when it reached its budget and ran its test (a tuning trial,
+    ``"tuning": true`` in the plan, runs none), else None: from its run directory, or, where
+    that is gone (another machine), from its committed result file
     (``results/<sweep>/<trial>.json``), so a finished trial never runs again."""
     try:
         with open(os.path.join(trial["run_dir"], "summary.json")) as f:
@@ -46,7 +47,8 @@ def _finished(trial: dict) -> dict | None:
                 summary = json.load(f)["summary"]
         except (OSError, ValueError, KeyError, TypeError):
             summary = None
-    if summary and summary.get("steps", 0) >= trial["steps"] and summary.get("test_eval"):
+    tested = summary and (summary.get("test_eval") or trial.get("tuning"))
+    if tested and summary.get("steps", 0) >= trial["steps"]:
         return summary
     return None
 
@@ -225,16 +227,12 @@ def make_trainable(plan: dict):
             if summary is None:
                 raise RuntimeError(f"trial {t['id']}: rdpg train ended before its budget")
         collect()
-        test = summary["test_eval"]
-        tune.report(
-            {
-                "step": summary["steps"],
-                "test_mean_stock_return": test["mean_stock_return"],
-                "test_success_rate": test["success_rate"],
-                "finished": True,
-            },
-            checkpoint=_checkpoint(run_dir, summary["steps"]),
-        )
+        report = {"step": summary["steps"], "finished": True}
+        test = summary.get("test_eval")
+        if test:
+            report["test_mean_stock_return"] = test["mean_stock_return"]
+            report["test_success_rate"] = test["success_rate"]
+        tune.report(report, checkpoint=_checkpoint(run_dir, summary["steps"]))
 
     return trainable
 
