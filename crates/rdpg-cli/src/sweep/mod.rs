@@ -9,9 +9,10 @@
 //! `python -m rdpg.sweep` (Ray Tune: `crates/rdpg-py/python/rdpg/sweep.py`), which starts,
 //! resumes or skips each trial. `--collect` writes each finished trial's small result file
 //! under the sweep's `results` folder (what `rdpg table` reads and what gets committed), and
-//! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`results::Ledger`]);
-//! A tuning sweep (`tuning = true`) never opens its trials' test seeds: `--collect` writes
-//! their validation curves and a validation table instead (`validation.rs`).
+//! the ledger of all trials there (`ledger.json`, `ledger.md`; see [`results::Ledger`]).
+//! A tuning sweep (`tuning = true`) never opens its trials' test seeds: its result files carry
+//! no test, and `--collect` also writes the trials' validation curves and a validation table
+//! (`validation.rs`).
 //! `--status` tells where a running or stopped sweep stands (`status.rs`); `--stop` stops a
 //! running one from any shell and waits until its trials have saved (`stop.rs`).
 //!
