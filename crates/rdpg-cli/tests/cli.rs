@@ -1551,6 +1551,14 @@ fn sweep_files_are_checked_and_planned() {
             "tuning = true\nsteps = 100\n[[row]]\nname = \"a\"\n",
             &["tuning seeds (10 and up", "not seed 0"][..],
         ),
+        (
+            "tuning = true\nsteps = 100\nkeep_chosen_agents = true\n[[row]]\nname = \"a\"\n",
+            &["a tuning sweep keeps no agent"][..],
+        ),
+        (
+            "frames = 0\n[[row]]\nname = \"a\"\n",
+            &["the budget and threads must be positive"][..],
+        ),
     ] {
         write(body);
         fails(&mut sweep(), needles);
@@ -1677,9 +1685,14 @@ fn a_tuning_sweep_never_opens_the_test_seeds() {
         "{line}"
     );
     assert_eq!(cells[4], cells[5], "{line}");
-    // Rerun, the finished trial does not run again.
+    // Rerun on a new Tune experiment (its own, kept, skips finished trials without asking),
+    // the driver finds the trial finished and does not resume it.
+    std::fs::remove_dir_all(dir.join("runs/sweeps/t/tune")).unwrap();
     let end = last_line(ok(&mut sweep()));
     assert_eq!(end["finished"].as_u64(), Some(1), "{end}");
+    let versions =
+        std::fs::read_to_string(dir.join("runs/sweeps/t/trials/rdpg-s10/versions.jsonl")).unwrap();
+    assert_eq!(versions.lines().count(), 1, "resumed: {versions}");
     let status = ok(rdpg()
         .current_dir(&dir)
         .args(["sweep", "t.toml", "--status"]));

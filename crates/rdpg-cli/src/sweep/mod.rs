@@ -23,7 +23,7 @@
 //! seeds = [0, 1, 2]
 //! steps = 1000000                          # train.total_steps of every trial (agent steps)
 //! # frames = 3000000                       # or the budget in env frames: steps = frames / action repeat
-//! # tuning = true                          # tuning seeds (10+), no test: validation.md instead
+//! # tuning = true                          # tuning seeds (10+), no test; validation.md besides
 //! threads = 1                              # libtorch threads per trial
 //! set = ["train.test_episodes=200"]        # overrides for every row (before the row's)
 //! results = "results/table1-cpu"           # default: results/<name>
@@ -214,7 +214,8 @@ pub struct Trial {
     pub seed: u64,
     /// Base experiment file.
     pub base: PathBuf,
-    /// Every override, in order (sweep, grid, row, then seed, budget and threads).
+    /// Every override, in order (sweep, grid, row, then seed, budget, threads and, in a
+    /// tuning sweep, `train.test_episodes=0`).
     pub set: Vec<String>,
     /// Its run directory.
     pub run_dir: PathBuf,
@@ -320,17 +321,17 @@ impl Sweep {
             );
         }
         if file.tuning {
-            if let Some(s) = file.seeds.iter().find(|&&s| s < TUNING_SEEDS) {
-                bail!(
-                    "{}: a tuning sweep runs on tuning seeds ({TUNING_SEEDS} and up; the results \
-                     protocol keeps the ones below for declared runs), not seed {s}",
-                    path.display()
-                );
-            }
             if file.keep_chosen_agents {
                 bail!(
                     "{}: a tuning sweep keeps no agent (`keep_chosen_agents`): its trials are \
                      never tested",
+                    path.display()
+                );
+            }
+            if let Some(s) = file.seeds.iter().find(|&&s| s < TUNING_SEEDS) {
+                bail!(
+                    "{}: a tuning sweep runs on tuning seeds ({TUNING_SEEDS} and up; the results \
+                     protocol keeps the ones below for declared runs), not seed {s}",
                     path.display()
                 );
             }

@@ -91,6 +91,19 @@ pub fn run_record(run: &RunDir) -> Result<RunRecord> {
     })
 }
 
+/// Whether a run's summary says it ended at `budget`: its test is written, or, in a tuning
+/// sweep (no test), its final validation at the budget is (the summary reaches the budget's
+/// steps before that evaluation runs). The sweep's driver (`sweep.py`, `_finished`) decides
+/// the same.
+fn finished(summary: &Summary, budget: u64, tuning: bool) -> bool {
+    summary.steps >= budget
+        && if tuning {
+            summary.last_eval.as_ref().is_some_and(|e| e.step >= budget)
+        } else {
+            summary.test_eval.is_some()
+        }
+}
+
 /// Writes the result file of every finished trial (and, with `keep_chosen_agents`, the kept run
 /// directory of each that has none yet: [`keep_run`]); returns one line per file written.
 pub(super) fn collect(sweep: &Sweep) -> Result<Vec<String>> {
@@ -100,8 +113,7 @@ pub(super) fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         let Ok(summary) = run.read_summary() else {
             continue;
         };
-        // A tuning trial is finished at its budget: it runs no test.
-        if summary.steps < t.steps || (summary.test_eval.is_none() && !sweep.file.tuning) {
+        if !finished(&summary, t.steps, sweep.file.tuning) {
             continue;
         }
         let RunRecord {
@@ -366,6 +378,33 @@ mod tests {
             restarts: 0,
             started,
         }
+    }
+
+    #[test]
+    fn a_run_is_finished_by_its_test_or_in_tuning_its_last_validation() {
+        let summary = |steps: u64, last_eval: Option<u64>, tested: bool| -> Summary {
+            let eval = |step: u64| {
+                serde_json::json!({ "step": step, "mean_stock_return": 1.0,
+                                    "std_stock_return": 0.0, "success_rate": 0.0 })
+            };
+            serde_json::from_value(serde_json::json!({
+                "name": "a", "algo": "rdpg", "env": "CueMemory-v0", "train_reward": "stock",
+                "steps": steps, "episodes": 1, "wall_seconds": 1.0,
+                "last_eval": last_eval.map(eval),
+                "test_eval": tested.then(|| serde_json::json!({
+                    "step": steps, "episodes": 1, "first_seed": 3, "mean_stock_return": 1.0,
+                    "std_stock_return": 0.0, "success_rate": 0.0
+                })),
+            }))
+            .unwrap()
+        };
+        // At its budget's steps before its final validation: not finished yet.
+        assert!(!finished(&summary(800, Some(600), false), 800, true));
+        assert!(finished(&summary(800, Some(800), false), 800, true));
+        assert!(!finished(&summary(600, Some(600), false), 800, true));
+        // A declared trial needs its test.
+        assert!(!finished(&summary(800, Some(800), false), 800, false));
+        assert!(finished(&summary(800, Some(800), true), 800, false));
     }
 
     #[test]

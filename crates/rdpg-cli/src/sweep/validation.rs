@@ -21,7 +21,8 @@ fn progress(sweep: &Sweep, t: &Trial) -> Result<Option<(u64, Curve)>> {
         let r: TrialResult = read_json(&result)?;
         return Ok(Some((r.steps, r.curve)));
     }
-    Ok(None)
+    // Started, no summary written yet.
+    Ok(run.root().exists().then(|| (0, Vec::new())))
 }
 
 /// The validation at `mark` agent steps: the last point at or before it, once the curve has
@@ -113,8 +114,12 @@ pub(super) fn write_validation(sweep: &Sweep) -> Result<Vec<String>> {
     for t in &sweep.trials {
         let from = t.run_dir.join("evals.csv");
         if from.exists() {
+            // Whole or not at all: copied beside and renamed into place.
             let to = sweep.results.join(format!("{}-evals.csv", t.id));
-            copy_file(&from, &to)?;
+            let partial = to.with_extension("csv.partial");
+            copy_file(&from, &partial)?;
+            std::fs::rename(&partial, &to)
+                .with_context(|| format!("renaming {} to {}", partial.display(), to.display()))?;
             out.push(to.display().to_string());
         }
     }

@@ -32,10 +32,12 @@ import time
 
 
 def _finished(trial: dict) -> dict | None:
-    """The trial's summary when it reached its budget and ran its test (a tuning trial,
-    ``"tuning": true`` in the plan, runs none), else None: from its run directory, or, where
-    that is gone (another machine), from its committed result file
-    (``results/<sweep>/<trial>.json``), so a finished trial never runs again."""
+    """The trial's summary once its run ended at its budget, else None. A run has ended when
+    its test is written; a tuning trial (``"tuning": true`` in the plan) runs no test and has
+    ended once its final validation, at the budget, is written (as ``rdpg sweep --collect``
+    decides). Read from its run directory, or, where that is gone (another machine), from its
+    committed result file (``results/<sweep>/<trial>.json``), so a finished trial never runs
+    again."""
     try:
         with open(os.path.join(trial["run_dir"], "summary.json")) as f:
             summary = json.load(f)
@@ -47,10 +49,13 @@ def _finished(trial: dict) -> dict | None:
                 summary = json.load(f)["summary"]
         except (OSError, ValueError, KeyError, TypeError):
             summary = None
-    tested = summary and (summary.get("test_eval") or trial.get("tuning"))
-    if tested and summary.get("steps", 0) >= trial["steps"]:
-        return summary
-    return None
+    if not summary or summary.get("steps", 0) < trial["steps"]:
+        return None
+    if trial.get("tuning"):
+        ended = (summary.get("last_eval") or {}).get("step", -1) >= trial["steps"]
+    else:
+        ended = bool(summary.get("test_eval"))
+    return summary if ended else None
 
 
 def _wait_unlocked(run_dir: str) -> None:
