@@ -142,12 +142,8 @@ pub(super) fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         };
         std::fs::create_dir_all(&sweep.results)
             .with_context(|| format!("creating {}", sweep.results.display()))?;
-        // Whole or not at all: written beside and renamed into place.
         let path = sweep.results.join(format!("{}.json", t.id));
-        let partial = path.with_extension("json.partial");
-        write_json(&partial, &r)?;
-        std::fs::rename(&partial, &path)
-            .with_context(|| format!("renaming {} to {}", partial.display(), path.display()))?;
+        write_whole(&path, serde_json::to_string_pretty(&r)? + "\n")?;
         out.push(path.display().to_string());
         let kept = sweep.results.join("runs").join(&t.id);
         if sweep.file.keep_chosen_agents && !kept.exists() {
@@ -156,6 +152,17 @@ pub(super) fn collect(sweep: &Sweep) -> Result<Vec<String>> {
         }
     }
     Ok(out)
+}
+
+/// Writes `contents` to `path` whole or not at all: beside it (`<name>.partial`), then renamed
+/// into place, so a reader never sees half a file.
+pub(super) fn write_whole(path: &Path, contents: impl AsRef<[u8]>) -> Result<()> {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    let partial = path.with_file_name(name);
+    std::fs::write(&partial, contents).with_context(|| format!("writing {}", partial.display()))?;
+    std::fs::rename(&partial, path)
+        .with_context(|| format!("renaming {} to {}", partial.display(), path.display()))
 }
 
 /// Copies what `rdpg zoo`, `rdpg eval` and `rdpg render` read of a finished run to `to`: its
@@ -350,15 +357,8 @@ pub(super) fn write_ledger(sweep: &Sweep) -> Result<PathBuf> {
     let l = ledger(sweep, &before)?;
     std::fs::create_dir_all(&sweep.results)
         .with_context(|| format!("creating {}", sweep.results.display()))?;
-    for (p, text) in [
-        (path.clone(), serde_json::to_string_pretty(&l)? + "\n"),
-        (sweep.results.join("ledger.md"), ledger_markdown(&l)),
-    ] {
-        let partial = p.with_extension("partial");
-        std::fs::write(&partial, text).with_context(|| format!("writing {}", partial.display()))?;
-        std::fs::rename(&partial, &p)
-            .with_context(|| format!("renaming {} to {}", partial.display(), p.display()))?;
-    }
+    write_whole(&path, serde_json::to_string_pretty(&l)? + "\n")?;
+    write_whole(&sweep.results.join("ledger.md"), ledger_markdown(&l))?;
     Ok(path)
 }
 

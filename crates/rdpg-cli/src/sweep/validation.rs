@@ -2,8 +2,9 @@
 //! each started trial's validation curve (`<trial>-evals.csv`, running trials included) and one
 //! table of every trial's validation at eighths of its budget (`validation.md`).
 
-use super::{results::TrialResult, run_record, Budget, Sweep, Trial};
-use crate::rundir::{copy_file, read_json, RunDir};
+use super::results::{write_whole, TrialResult};
+use super::{run_record, Budget, Sweep, Trial};
+use crate::rundir::{read_json, RunDir};
 use crate::zoo::steps_k;
 use anyhow::{Context, Result};
 
@@ -114,21 +115,15 @@ pub(super) fn write_validation(sweep: &Sweep) -> Result<Vec<String>> {
     for t in &sweep.trials {
         let from = t.run_dir.join("evals.csv");
         if from.exists() {
-            // Whole or not at all: copied beside and renamed into place.
             let to = sweep.results.join(format!("{}-evals.csv", t.id));
-            let partial = to.with_extension("csv.partial");
-            copy_file(&from, &partial)?;
-            std::fs::rename(&partial, &to)
-                .with_context(|| format!("renaming {} to {}", partial.display(), to.display()))?;
+            let csv =
+                std::fs::read(&from).with_context(|| format!("reading {}", from.display()))?;
+            write_whole(&to, csv)?;
             out.push(to.display().to_string());
         }
     }
     let path = sweep.results.join("validation.md");
-    let partial = path.with_extension("md.partial");
-    std::fs::write(&partial, validation_table(sweep)?)
-        .with_context(|| format!("writing {}", partial.display()))?;
-    std::fs::rename(&partial, &path)
-        .with_context(|| format!("renaming {} to {}", partial.display(), path.display()))?;
+    write_whole(&path, validation_table(sweep)?)?;
     out.push(path.display().to_string());
     Ok(out)
 }
