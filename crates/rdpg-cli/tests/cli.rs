@@ -1,6 +1,6 @@
 //! End-to-end tests of the `rdpg` binary.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
@@ -1622,16 +1622,25 @@ fn sweep_files_are_checked_and_planned() {
     assert_eq!(budgets, [(200, 600), (300, 600)]);
 }
 
-/// A tuning sweep on Ray: its trial finishes at its budget without a test (the test seeds stay
-/// closed), and `--collect` writes its validation curve and table, and a result file without
-/// a test; the sweep, rerun, starts nothing.
-#[test]
-fn a_tuning_sweep_never_opens_the_test_seeds() {
+/// `rdpg sweep FILE --cpus CPUS` in `dir` on the set-up's Python (and its Ray).
+fn ray_sweep(dir: &Path, file: &str, cpus: &str) -> Command {
     let python = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
     assert!(
         python.exists(),
         "run the README's set-up first (it makes .venv)"
     );
+    let mut c = rdpg();
+    c.current_dir(dir)
+        .args(["sweep", file, "--cpus", cpus, "--python"])
+        .arg(python);
+    c
+}
+
+/// A tuning sweep on Ray: its trial finishes at its budget without a test (the test seeds stay
+/// closed), and `--collect` writes its validation curve and table, and a result file without
+/// a test; the sweep, rerun, starts nothing.
+#[test]
+fn a_tuning_sweep_never_opens_the_test_seeds() {
     let dir = tmp("sweep-tuning");
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -1648,13 +1657,7 @@ fn a_tuning_sweep_never_opens_the_test_seeds() {
         ),
     )
     .unwrap();
-    let sweep = || {
-        let mut c = rdpg();
-        c.current_dir(&dir)
-            .args(["sweep", "t.toml", "--cpus", "1", "--python"])
-            .arg(&python);
-        c
-    };
+    let sweep = || ray_sweep(&dir, "t.toml", "1");
     let last_line = |out: std::process::Output| -> Value {
         let text = String::from_utf8_lossy(&out.stdout).to_string();
         serde_json::from_str(text.lines().last().unwrap()).unwrap()
@@ -1723,11 +1726,6 @@ fn processes_naming(needle: &str) -> Vec<u32> {
 /// and `rdpg table` gives the numbers of the runs' own summaries.
 #[test]
 fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
-    let python = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
-    assert!(
-        python.exists(),
-        "run the README's set-up first (it makes .venv)"
-    );
     let dir = tmp("sweep-ray");
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -1745,13 +1743,7 @@ fn a_sweep_on_ray_resumes_after_an_interrupt_and_its_table_matches_the_runs() {
         ),
     )
     .unwrap();
-    let sweep_on = |cpus: &str| {
-        let mut c = rdpg();
-        c.current_dir(&dir)
-            .args(["sweep", "s.toml", "--cpus", cpus, "--python"])
-            .arg(&python);
-        c
-    };
+    let sweep_on = |cpus: &str| ray_sweep(&dir, "s.toml", cpus);
     let sweep = || sweep_on("2");
     let trials = dir.join("runs/sweeps/s/trials");
     let trials_text = trials.display().to_string();

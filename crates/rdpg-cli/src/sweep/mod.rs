@@ -244,6 +244,8 @@ pub struct Sweep {
     pub root: PathBuf,
     /// Where result files go.
     pub results: PathBuf,
+    /// The budget as the file gives it.
+    budget: Budget,
 }
 
 fn check_name(what: &str, name: &str) -> Result<()> {
@@ -428,15 +430,8 @@ impl Sweep {
             trials,
             root,
             results,
+            budget,
         })
-    }
-
-    /// The budget as the file gives it.
-    fn budget(&self) -> Budget {
-        match (self.file.steps, self.file.frames) {
-            (_, Some(frames)) => Budget::Frames(frames),
-            (steps, None) => Budget::Steps(steps.unwrap_or_default()),
-        }
     }
 
     /// The rows in order, each with its first trial (all trials of a row share its settings

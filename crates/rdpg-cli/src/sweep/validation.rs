@@ -62,7 +62,7 @@ fn one_decimal(v: f64) -> String {
 /// its budget and its best within the budget.
 pub(super) fn validation_table(sweep: &Sweep) -> Result<String> {
     const MARKS: u64 = 8;
-    let budget = sweep.budget();
+    let budget = sweep.budget;
     let unit = match budget {
         Budget::Steps(_) => "agent steps",
         Budget::Frames(_) => "frames",
