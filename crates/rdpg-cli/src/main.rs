@@ -6,7 +6,8 @@
 //! sequence and print the trajectory as JSON lines), `render` (an episode to PNG frames and an
 //! animated GIF), `select` (choose among kept agents on more validation episodes), `zoo` (ship
 //! an agent), `sweep` (rows × seeds on Ray Tune), `table` (seed-aggregated tables and curves),
-//! `claims` (the paper's claims checked on the sweeps' results), `bench` (throughput).
+//! `claims` (the paper's claims checked on the sweeps' results), `staleness` (how stale the
+//! recurrent states of a run's replayed windows are), `bench` (throughput).
 
 mod bench;
 mod claims;
@@ -17,6 +18,7 @@ mod report;
 mod rollout;
 mod rundir;
 mod select;
+mod staleness;
 mod stop;
 mod sweep;
 mod table;
@@ -65,6 +67,9 @@ enum Command {
     /// The paper's claims, each checked as orderings of a sweep's rows (a Markdown table with
     /// the IQM differences, their 95 % CIs and a verdict).
     Claims(claims::ClaimsArgs),
+    /// How far the recurrent states a run's updates start their windows from lie from those
+    /// its networks reach along the whole episode (R2D2's staleness), from its replay buffer.
+    Staleness(staleness::StalenessArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -86,6 +91,7 @@ fn main() -> Result<()> {
         Command::Sweep(a) => sweep::run(&a),
         Command::Table(a) => table::run(&a),
         Command::Claims(a) => claims::run(&a),
+        Command::Staleness(a) => staleness::run(&a),
         Command::Bench(b) => bench::run(&b),
     }
 }

@@ -331,6 +331,42 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         "{tb:?}"
     );
     assert!(one.join("checkpoints/latest/replay.bin").exists());
+    // The staleness of its replayed windows' starts: CueMemory's episodes are 6 steps long,
+    // so a burn-in of 6 from a zero state is exact, and no memory is not.
+    let stale = ok(rdpg()
+        .args([
+            "staleness",
+            "--positions",
+            "50",
+            "--burn-in",
+            "6,0",
+            "--json",
+            "--run",
+        ])
+        .arg(&one));
+    let stale: Value = serde_json::from_slice(&stale.stdout).unwrap();
+    assert_eq!(stale["burn_ins"], serde_json::json!([0, 6]), "{stale}");
+    let line = |net: &str, k: u64| {
+        stale["gaps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|g| {
+                g["pool"] == "agent" && g["net"] == net && g["start"] == "zero" && g["burn_in"] == k
+            })
+            .unwrap_or_else(|| panic!("no {net} line at {k}: {stale}"))
+            .clone()
+    };
+    for net in ["actor", "critic 0"] {
+        assert_eq!(line(net, 6)["positions"], 50);
+        assert!(line(net, 6)["max"].as_f64().unwrap() < 1e-6, "{stale}");
+        assert!(line(net, 0)["mean"].as_f64().unwrap() > 1e-4, "{stale}");
+    }
+    let table = ok(rdpg()
+        .args(["staleness", "--positions", "20", "--run"])
+        .arg(&one));
+    let table = String::from_utf8_lossy(&table.stdout).to_string();
+    assert!(table.contains("| agent | actor | zero | 20 |"), "{table}");
     let lines: Vec<Value> = std::fs::read_to_string(one.join("metrics.jsonl"))
         .unwrap()
         .lines()
@@ -2368,7 +2404,8 @@ fn crafted_agent_sizes_are_refused_before_allocation() {
 
 /// Arguments and files a careless or hostile user can give: an agent whose manifest was
 /// deleted (its zoo summary lists one) is refused, not loaded unchecked; a resume asked to
-/// stop before the steps already done and a render of every 0th frame are errors.
+/// stop before the steps already done, a render of every 0th frame and the staleness of a
+/// zoo entry (no replay) or of no run are errors.
 #[test]
 fn missing_manifests_and_impossible_arguments_are_refused() {
     let zoo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../zoo/walker-td3");
@@ -2392,6 +2429,14 @@ fn missing_manifests_and_impossible_arguments_are_refused() {
             "manifest.json",
             "missing, though the entry's summary.json lists it",
         ],
+    );
+    fails(
+        rdpg().args(["staleness", "--run"]).arg(&zoo),
+        &["zoo entry", "no replay buffer"],
+    );
+    fails(
+        rdpg().args(["staleness", "--run"]).arg(tmp("no-such-run")),
+        &["checkpoints/latest"],
     );
     for (every, scale) in [("0", "1"), ("1", "0")] {
         fails(

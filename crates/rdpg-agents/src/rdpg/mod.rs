@@ -33,6 +33,7 @@ mod prepared;
 pub mod profile;
 mod sac;
 mod sac_config;
+pub mod staleness;
 mod tqc;
 pub mod trainer;
 mod twins;
@@ -45,6 +46,7 @@ pub use config::{
 };
 pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
 pub use profile::PhaseTimes;
+pub use staleness::{state_staleness, Staleness, StartGap};
 pub use trainer::{OffPolicyTrainer, RdpgPolicy};
 
 #[cfg(test)]

@@ -108,6 +108,21 @@ pub struct OffPolicyTrainer {
     st: LoopState,
 }
 
+/// The replay buffer of the off-policy trainer checkpoint in `dir` (`checkpoints/latest` of a
+/// run): every episode the agent learned from, with its stored acting-time states.
+pub fn load_replay(dir: &Path) -> Result<EpisodicReplay> {
+    read_replay(dir, Header::read(dir, Some(TrainerKind::OffPolicy))?)
+}
+
+fn read_replay(dir: &Path, header: Header) -> Result<EpisodicReplay> {
+    let path = dir.join("replay.bin");
+    if header.format == 3 {
+        EpisodicReplay::try_from(read_bin::<ReplayFormat3>(&path)?).map_err(|e| ckpt_err(&path, e))
+    } else {
+        read_bin(&path)
+    }
+}
+
 impl OffPolicyTrainer {
     /// A fresh run (validates all three configs).
     pub fn new(cfg: TrainConfig, off: OffPolicyConfig, agent_cfg: RdpgConfig) -> Result<Self> {
@@ -204,13 +219,7 @@ impl OffPolicyTrainer {
         off.validate()?;
         let mut agent = RdpgAgent::load(dir.join("agent"))?;
         check_sac_exploration(&off, agent.config())?;
-        let replay_path = dir.join("replay.bin");
-        let replay: EpisodicReplay = if header.format == 3 {
-            EpisodicReplay::try_from(read_bin::<ReplayFormat3>(&replay_path)?)
-                .map_err(|e| ckpt_err(&replay_path, e))?
-        } else {
-            read_bin(&replay_path)?
-        };
+        let replay = read_replay(dir, header)?;
         let st: LoopState = read_bin(&dir.join("loop.bin"))?;
         let collector = Collector::restore(&cfg, read_bin(&dir.join("collector.bin"))?)?;
         let n = cfg.num_envs;

@@ -23,6 +23,7 @@ mod fork;
 mod gradients;
 mod sac;
 mod sequences;
+mod staleness;
 mod targets;
 
 const OBS: usize = 13; // 3 body sensors + 10 lidar values
