@@ -51,7 +51,7 @@ fn exact_starts_measure_no_gap_and_no_memory_does() {
         ep.states = vec![0.0; n * sd];
         zeros.add_episode(ep).unwrap();
     }
-    let ks = [0, 2, n];
+    let ks = [0, 2, n - 2, n - 1];
     let s = state_staleness(&agent, &exact, 300, &ks, 1).unwrap();
     assert_eq!(s.burn_ins, ks);
     assert!(s.q_spread > 0.0);
@@ -61,8 +61,12 @@ fn exact_starts_measure_no_gap_and_no_memory_does() {
             assert!(g.max < 1e-6, "{g:?}"); // states stored as f32
         }
         for net in ["actor", "critic 0"] {
-            let g = gap(&s.gaps, pool, net, "zero", n);
+            // A burn-in of n - 1 steps reaches back to step 0 from every step: exact. One of
+            // n - 2 steps misses step 0 at the last step only: a gap there.
+            let g = gap(&s.gaps, pool, net, "zero", n - 1);
             assert!(g.max < 1e-12, "{g:?}");
+            let g = gap(&s.gaps, pool, net, "zero", n - 2);
+            assert!(g.max > 1e-9, "{g:?}");
             let none = gap(&s.gaps, pool, net, "zero", 0);
             let short = gap(&s.gaps, pool, net, "zero", 2);
             assert!(none.mean > 1e-5, "no memory, no gap: {none:?}");
@@ -71,14 +75,18 @@ fn exact_starts_measure_no_gap_and_no_memory_does() {
     }
     assert_eq!(gap(&s.gaps, "agent", "actor", "zero", 0).positions, 300);
     assert_eq!(gap(&s.gaps, "injected", "actor", "zero", 0).positions, 300);
-    let quarters: usize = ["oldest", "second", "third", "newest"]
+    // Five own episodes by age: ranks 0 and 1 make the oldest quarter, 2, 3 and 4 one each.
+    let quarters: Vec<usize> = ["oldest", "second", "third", "newest"]
         .iter()
-        .filter_map(|q| {
-            let pool = format!("agent, {q} quarter");
-            s.gaps.iter().find(|g| g.pool == pool).map(|g| g.positions)
-        })
-        .sum();
-    assert_eq!(quarters, 300, "the quarters split the agent's positions");
+        .map(|q| gap(&s.gaps, &format!("agent, {q} quarter"), "actor", "zero", 0).positions)
+        .collect();
+    assert_eq!(quarters.iter().sum::<usize>(), 300, "{quarters:?}");
+    assert!(
+        quarters[1..]
+            .iter()
+            .all(|&q| 2 * q < quarters[0] + 30 && 2 * q + 30 > quarters[0]),
+        "{quarters:?}"
+    );
 
     let z = state_staleness(&agent, &zeros, 300, &ks, 1).unwrap();
     for k in ks {
