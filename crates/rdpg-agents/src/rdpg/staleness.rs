@@ -67,6 +67,9 @@ pub struct Staleness {
     pub gaps: Vec<StartGap>,
 }
 
+/// The most positions one measurement draws (per pool).
+pub const MAX_POSITIONS: usize = 1_000_000;
+
 /// A drawn position: episode index (in [`EpisodicReplay::episodes`] order) and step.
 type Position = (usize, usize);
 
@@ -257,7 +260,7 @@ fn summary(v: &mut [f64]) -> (f64, f64, f64) {
 ///
 /// A feed-forward agent or a window-of-k agent (`act_window`: it acts and trains from the same
 /// zero-started window, so its starts are exact), a replay whose sizes do not match the agent,
-/// or one without a transition of the agent's own.
+/// one without a transition of the agent's own, or a burn-in longer than its longest episode.
 pub fn state_staleness(
     agent: &RdpgAgent,
     replay: &EpisodicReplay,
@@ -293,10 +296,11 @@ pub fn state_staleness(
             agent.state_dim()
         )));
     }
-    if positions == 0 || burn_ins.is_empty() {
-        return Err(AgentError::Input(
-            "measure at least one position and one burn-in length".into(),
-        ));
+    if positions == 0 || positions > MAX_POSITIONS || burn_ins.is_empty() {
+        return Err(AgentError::Input(format!(
+            "measure 1 to {MAX_POSITIONS} positions (got {positions}) and at least one burn-in \
+             length"
+        )));
     }
     let all = replay.episodes();
     let own: Vec<usize> = (0..all.len()).filter(|&e| !all[e].injected).collect();
@@ -305,6 +309,13 @@ pub fn state_staleness(
         return Err(AgentError::Input(
             "the replay holds no episode of the agent's own".into(),
         ));
+    }
+    let longest = all.iter().map(|e| e.len()).max().unwrap_or(0);
+    if let Some(k) = burn_ins.iter().find(|&&k| k > longest) {
+        return Err(AgentError::Input(format!(
+            "a burn-in of {k} steps is longer than the replay's longest episode ({longest} \
+             steps): from every position it would start at the episode's start"
+        )));
     }
     let mut rng = NpRng::from_seed(seed);
     let drawn_own = draw(&mut rng, &all, &own, positions);

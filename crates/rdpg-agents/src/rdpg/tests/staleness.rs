@@ -100,8 +100,8 @@ fn exact_starts_measure_no_gap_and_no_memory_does() {
     assert_eq!(s, state_staleness(&agent, &exact, 300, &ks, 1).unwrap());
 }
 
-/// Feed-forward and window-of-k agents, a replay of other sizes and one without the agent's
-/// own episodes are refused, each with its reason.
+/// Feed-forward and window-of-k agents, a replay of other sizes, one without the agent's own
+/// episodes and a burn-in longer than every episode are refused, each with its reason.
 #[test]
 fn staleness_refuses_what_it_cannot_measure() {
     let mut rng = NpRng::from_seed(2);
@@ -116,7 +116,19 @@ fn staleness_refuses_what_it_cannot_measure() {
     assert!(err(&agent, &replay).contains("no episode of the agent's own"));
     replay.add_episode(episode(&mut rng, 5, false)).unwrap();
     assert!(state_staleness(&agent, &replay, 10, &[0, 2], 0).is_ok());
-    assert!(state_staleness(&agent, &replay, 0, &[0], 0).is_err());
+    let err_n = |n: usize| {
+        state_staleness(&agent, &replay, n, &[0], 0)
+            .unwrap_err()
+            .to_string()
+    };
+    for n in [0, 1_000_001] {
+        assert!(err_n(n).contains("measure 1 to 1000000 positions"));
+    }
+    assert!(state_staleness(&agent, &replay, 10, &[5], 0).is_ok());
+    assert!(state_staleness(&agent, &replay, 10, &[6], 0)
+        .unwrap_err()
+        .to_string()
+        .contains("longer than the replay's longest episode (5 steps)"));
 
     let ff = RdpgConfig {
         recurrent: false,
