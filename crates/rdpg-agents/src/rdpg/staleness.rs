@@ -22,11 +22,12 @@ use std::collections::BTreeMap;
 use rdpg_core::replay::{Episode, EpisodicReplay};
 use rdpg_core::rng::NpRng;
 use serde::Serialize;
-use tch::{Kind, Tensor};
+use tch::Tensor;
 
 use super::config::ScanMethod;
 use super::lstm::{scan_state, RecState};
 use super::RdpgAgent;
+use crate::common::tensor::tensor_to_vec64;
 use crate::error::{AgentError, Result};
 
 /// The gap of one start, over one pool of positions.
@@ -108,17 +109,6 @@ struct At {
     q_ref: f64,
 }
 
-fn to_f64(t: &Tensor) -> Vec<f64> {
-    let t = t
-        .to_kind(Kind::Double)
-        .to_device(tch::Device::Cpu)
-        .contiguous();
-    let n = t.numel();
-    let mut v = vec![0.0; n];
-    t.copy_data(&mut v, n);
-    v
-}
-
 /// `x [1, T, E]` -> the `k` steps before each of `ts`, `[m, k, E]`, left-padded with step 0
 /// (never read: the scan runs only each window's real steps), and their real lengths.
 fn scan_inputs(x: &Tensor, ts: &[usize], k: usize) -> (Tensor, Vec<usize>) {
@@ -175,7 +165,7 @@ fn episode_gaps(agent: &RdpgAgent, ep: &Episode, ts: &[usize], burn_ins: &[usize
     let act_ref = actor.step(&o_t, &rows(&ha, &ca, &it)).0; // [m, A]
     let action_gap = |s: &RecState| -> Vec<f64> {
         let diff = actor.step(&o_t, s).0 - &act_ref; // [m, A]
-        to_f64(&diff.square().mean_dim(1, false, kind).sqrt())
+        tensor_to_vec64(&diff.square().mean_dim(1, false, kind).sqrt())
     };
     let stored = (!ep.states.is_empty()).then(|| {
         let w = ep.states.len() as i64 / n;
@@ -192,7 +182,7 @@ fn episode_gaps(agent: &RdpgAgent, ep: &Episode, ts: &[usize], burn_ins: &[usize
     let (hc, cc) = critic.core.states_before(&xc, &zero_c);
     let q_ref = critic.step(&o_t, &a_t, &rows(&hc, &cc, &it)).0; // [m]
 
-    let mut out: Vec<At> = to_f64(&q_ref)
+    let mut out: Vec<At> = tensor_to_vec64(&q_ref)
         .into_iter()
         .map(|q_ref| At {
             actor_stored: Vec::new(),
@@ -230,7 +220,7 @@ fn episode_gaps(agent: &RdpgAgent, ep: &Episode, ts: &[usize], burn_ins: &[usize
         let (xs, real) = scan_inputs(&xc, ts, k);
         let zc = critic.core.zero_state(m, kind, device);
         let s = scan_state(&critic.core, &xs, &real, &zc, ScanMethod::Grouped);
-        let q = to_f64(&(critic.step(&o_t, &a_t, &s).0 - &q_ref).abs());
+        let q = tensor_to_vec64(&(critic.step(&o_t, &a_t, &s).0 - &q_ref).abs());
         for (i, at) in out.iter_mut().enumerate() {
             at.actor_zero.push(zero[i]);
             at.actor_stored.push(from_stored.as_ref().map(|v| v[i]));
