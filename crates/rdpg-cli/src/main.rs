@@ -7,9 +7,11 @@
 //! animated GIF), `select` (choose among kept agents on more validation episodes), `zoo` (ship
 //! an agent), `sweep` (rows × seeds on Ray Tune), `table` (seed-aggregated tables and curves),
 //! `claims` (the paper's claims checked on the sweeps' results), `staleness` (how stale the
-//! recurrent states of a run's replayed windows are), `bench` (throughput).
+//! recurrent states of a run's replayed windows are), `bias` (its critics against the returns
+//! they predict), `bench` (throughput).
 
 mod bench;
+mod bias;
 mod claims;
 mod eval;
 mod experiment;
@@ -70,6 +72,9 @@ enum Command {
     /// How far the recurrent states a run's updates start their windows from lie from those
     /// its networks reach along the whole episode (R2D2's staleness), from its replay buffer.
     Staleness(staleness::StalenessArgs),
+    /// A run's critics against the discounted returns of its deterministic policy's episodes
+    /// on the training reward (TD3's estimation bias).
+    Bias(bias::BiasArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -92,6 +97,7 @@ fn main() -> Result<()> {
         Command::Table(a) => table::run(&a),
         Command::Claims(a) => claims::run(&a),
         Command::Staleness(a) => staleness::run(&a),
+        Command::Bias(a) => bias::run(&a),
         Command::Bench(b) => bench::run(&b),
     }
 }

@@ -367,6 +367,26 @@ fn train_writes_a_run_directory_resumes_and_evals() {
         .arg(&one));
     let table = String::from_utf8_lossy(&table.stdout).to_string();
     assert!(table.contains("| agent | actor | zero | 20 |"), "{table}");
+    // Its critics against the returns of its deterministic episodes (validation seeds):
+    // CueMemory's 6-step episodes end in a termination and are measured whole.
+    let bias = ok(rdpg()
+        .args([
+            "bias",
+            "--episodes",
+            "3",
+            "--checkpoint",
+            "latest",
+            "--json",
+            "--run",
+        ])
+        .arg(&one));
+    let bias: Value = serde_json::from_slice(&bias.stdout).unwrap();
+    assert_eq!(bias["steps_measured"], 18, "{bias}");
+    assert_eq!(bias["episodes"][0]["seed"], 1_000_000, "{bias}");
+    assert!(bias["critics"][0]["mean_q"].as_f64().unwrap().is_finite());
+    let table = ok(rdpg().args(["bias", "--episodes", "2", "--run"]).arg(&one));
+    let table = String::from_utf8_lossy(&table.stdout).to_string();
+    assert!(table.contains("(2 terminated, 0 truncated") && table.contains("| critic 0 |"));
     let lines: Vec<Value> = std::fs::read_to_string(one.join("metrics.jsonl"))
         .unwrap()
         .lines()
@@ -2404,8 +2424,8 @@ fn crafted_agent_sizes_are_refused_before_allocation() {
 
 /// Arguments and files a careless or hostile user can give: an agent whose manifest was
 /// deleted (its zoo summary lists one) is refused, not loaded unchecked; a resume asked to
-/// stop before the steps already done, a render of every 0th frame and the staleness of a
-/// zoo entry (no replay) or of no run are errors.
+/// stop before the steps already done, a render of every 0th frame, the staleness of a zoo
+/// entry (no replay) or of no run and the bias of a zoo entry's other agents are errors.
 #[test]
 fn missing_manifests_and_impossible_arguments_are_refused() {
     let zoo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../zoo/walker-td3");
@@ -2429,6 +2449,16 @@ fn missing_manifests_and_impossible_arguments_are_refused() {
             "manifest.json",
             "missing, though the entry's summary.json lists it",
         ],
+    );
+    fails(
+        rdpg().args(["bias", "--run"]).arg(&entry),
+        &["manifest.json", "missing"],
+    );
+    fails(
+        rdpg()
+            .args(["bias", "--checkpoint", "latest", "--run"])
+            .arg(&zoo),
+        &["zoo entry", "drop --checkpoint latest"],
     );
     fails(
         rdpg().args(["staleness", "--run"]).arg(&zoo),

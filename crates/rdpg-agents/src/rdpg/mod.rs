@@ -15,12 +15,15 @@
 //!   [`checkpoint`]: save and load.
 //! * [`trainer`]: [`OffPolicyTrainer`], Algorithm 1's outer loop; [`inject`]: experience
 //!   injection from teacher files.
+//! * [`staleness`] and [`bias`]: diagnostics of a trained agent (the recurrent states its
+//!   updates start from; its critics' estimation bias).
 //! * [`bench`](mod@bench): synthetic batches and the update benchmark; [`flops`]: the
 //!   update's counted FLOP and a matrix-product reference at its layer shapes.
 
 mod acting;
 pub mod agent;
 pub mod bench;
+pub mod bias;
 pub mod checkpoint;
 pub mod config;
 pub mod flops;
@@ -40,6 +43,7 @@ mod twins;
 pub mod update;
 
 pub use agent::{ActorState, RdpgAgent};
+pub use bias::{estimation_bias, CriticBias, EpisodeBias, EstimationBias};
 pub use config::{
     memory_task_config, CriticTarget, ForkConfig, RdpgConfig, SacConfig, ScanMethod, TargetNoise,
     TqcConfig, Trunk,

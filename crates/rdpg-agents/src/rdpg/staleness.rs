@@ -111,7 +111,7 @@ struct At {
 
 /// `x [1, T, E]` -> the `k` steps before each of `ts`, `[m, k, E]`, left-padded with step 0
 /// (never read: the scan runs only each window's real steps), and their real lengths.
-fn scan_inputs(x: &Tensor, ts: &[usize], k: usize) -> (Tensor, Vec<usize>) {
+pub(super) fn scan_inputs(x: &Tensor, ts: &[usize], k: usize) -> (Tensor, Vec<usize>) {
     let idx: Vec<i64> = ts
         .iter()
         .flat_map(|&t| (0..k).map(move |j| (t + j).saturating_sub(k) as i64))

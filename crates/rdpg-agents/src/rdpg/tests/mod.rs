@@ -19,6 +19,7 @@ use crate::common::tensor::{sorted_vars, tensor_to_vec64 as to_vec64, DeviceSpec
 use crate::common::UpdateStats;
 
 mod agent;
+mod bias;
 mod fork;
 mod gradients;
 mod sac;
