@@ -16,6 +16,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use rdpg_agents::common::ObstacleRecord;
 use rdpg_core::rng::NpRng;
+use rdpg_core::stats::mean_std;
 use rdpg_render::plot::{figure, LinePlot, Series, PALETTE};
 use rdpg_render::save_png;
 
@@ -262,17 +263,6 @@ fn stock_returns(t: &TrialResult) -> Option<&[f64]> {
     let x = t.test()?;
     let first = &x.returns[..x.returns.len().min(STOCK_TEST_EPISODES)];
     (!first.is_empty()).then_some(first)
-}
-
-fn mean_std(xs: &[f64]) -> (f64, f64) {
-    let n = xs.len() as f64;
-    let m = xs.iter().sum::<f64>() / n;
-    let var = if xs.len() > 1 {
-        xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)
-    } else {
-        0.0
-    };
-    (m, var.sqrt())
 }
 
 fn fmt_opt(v: Option<f64>) -> String {

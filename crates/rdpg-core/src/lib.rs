@@ -1,7 +1,7 @@
 //! Core abstractions of rdpg: the [`Env`] trait with Gymnasium semantics, observation and
 //! action [`spaces`], the error type shared by environment implementations, the episodic
-//! [`replay`] buffer and the [`SequenceBatch`] it samples, exploration [`noise`], and the
-//! reference critic [`targets`] of the paper.
+//! [`replay`] buffer and the [`SequenceBatch`] it samples, exploration [`noise`], the
+//! reference critic [`targets`] of the paper, and summary [`stats`].
 //!
 //! This crate deliberately knows nothing about tensors or physics: it is the vocabulary the
 //! environments (`rdpg-envs`) and the learners (`rdpg-agents`) share.
@@ -24,6 +24,7 @@ pub mod replay;
 pub mod rng;
 pub mod spaces;
 pub mod spin;
+pub mod stats;
 pub mod targets;
 
 pub use batch::SequenceBatch;

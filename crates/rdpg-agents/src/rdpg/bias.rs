@@ -19,6 +19,7 @@
 //! the entropy-regularised value of its stochastic policy, not the deterministic return:
 //! refused.
 
+use rdpg_core::stats::mean_std;
 use serde::Serialize;
 use tch::{Kind, Tensor};
 
@@ -141,17 +142,6 @@ fn critic_values(agent: &RdpgAgent, obs: &[f32], act: &[f32], steps: usize) -> V
             })
             .collect()
     })
-}
-
-/// Mean and sample standard deviation of `v` (std 0 below two values).
-fn mean_std(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    if v.len() < 2 {
-        return (mean, 0.0);
-    }
-    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, var.sqrt())
 }
 
 /// Measures `agent`'s critics' estimation bias (see the [module docs](self)) on `episodes`

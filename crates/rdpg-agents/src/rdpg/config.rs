@@ -46,6 +46,20 @@ pub enum ScanMethod {
     MaskedLoop,
 }
 
+/// How the actor loss (Eq. (DPG)) weighs the steps of the replayed windows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ActorWeights {
+    /// `1/len_n` on each real step of window `n`: every window weighs the same, so the steps
+    /// of the short windows at an episode's end weigh more (with windows of `l = 8`, an
+    /// episode's last step up to `1 + 1/2 + ... + 1/8 = 2.7` times a middle one). The default.
+    PerWindow,
+    /// `1/l` on every real step: every replayed step weighs the same wherever its window
+    /// ends, as the expectation over visited states of Eq. (DPG) reads and as the critic's
+    /// interpolated TD weights do (they are not renormalised for short windows either).
+    PerStep,
+}
+
 /// How the critic's regression targets are built.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -190,6 +204,10 @@ pub struct RdpgConfig {
     /// How the critic's targets are built: the paper's tail-step bootstrap (default) or the
     /// classic RDPG's per-step TD(0).
     pub critic_target: CriticTarget,
+    /// How the actor loss weighs a window's steps: `per_window` (`1/len_n`, the default) or
+    /// `per_step` (`1/l`, every replayed step alike). Window-of-k agents train the actor on
+    /// each window's first step alone and refuse `per_step`.
+    pub actor_weights: ActorWeights,
     /// Soft target update rate. 0 = no target networks: targets come from the behaviour networks
     /// without gradient (the authors' code). In `(0, 1]`: target networks updated by
     /// `target += tau * (online - target)` after every update.
@@ -293,6 +311,7 @@ impl Default for RdpgConfig {
             scan_len: 24,
             lambda: 1.0,
             critic_target: CriticTarget::TailBootstrap,
+            actor_weights: ActorWeights::PerWindow,
             tau: 0.0,
             actor_bptt: false,
             grad_clip: None,
@@ -494,6 +513,13 @@ impl RdpgConfig {
                 "window_grad",
                 "needs a window-of-k agent (act_window >= 2): without one the scan is a \
                  burn-in, never back-propagated",
+            ));
+        }
+        if self.act_window > 0 && self.actor_weights == ActorWeights::PerStep {
+            return Err(bad(
+                "actor_weights",
+                "per_step does not apply to a window-of-k agent (act_window > 0): its actor \
+                 trains on each window's first step alone",
             ));
         }
         if self.act_window > 0 {
@@ -884,6 +910,27 @@ mod tests {
             let e = bad.validate().unwrap_err().to_string();
             assert!(e.contains("parallel_twins"), "{e}");
         }
+        // per_step actor weights: a window-of-k actor trains on one step per window.
+        let window = RdpgConfig {
+            act_window: 4,
+            scan_len: 3,
+            update_len: 1,
+            tau: 0.005,
+            burn_in_from_stored_state: false,
+            ..Default::default()
+        };
+        window.validate().unwrap();
+        let e = RdpgConfig {
+            actor_weights: ActorWeights::PerStep,
+            ..window
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("actor_weights") && e.contains("window-of-k"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -45,8 +45,8 @@ pub mod update;
 pub use agent::{ActorState, RdpgAgent};
 pub use bias::{estimation_bias, CriticBias, EpisodeBias, EstimationBias};
 pub use config::{
-    memory_task_config, CriticTarget, ForkConfig, RdpgConfig, SacConfig, ScanMethod, TargetNoise,
-    TqcConfig, Trunk,
+    memory_task_config, ActorWeights, CriticTarget, ForkConfig, RdpgConfig, SacConfig, ScanMethod,
+    TargetNoise, TqcConfig, Trunk,
 };
 pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
 pub use profile::PhaseTimes;

@@ -6,7 +6,7 @@ use rdpg_core::targets::interpolated_td_weights_padded;
 use rdpg_core::SequenceBatch;
 use tch::{Device, Kind, Tensor};
 
-use super::config::RdpgConfig;
+use super::config::{ActorWeights, RdpgConfig};
 use super::lstm::RecState;
 use crate::{AgentError, Result};
 
@@ -41,7 +41,8 @@ pub(super) struct Prepared {
     pub(super) disc: Tensor,
     /// `[N, l]`: `lambda^i / sum_{j<u} lambda^j` on real steps among the first `u`.
     pub(super) critic_w: Tensor,
-    /// `[N, l]`: `1 / len` on real steps.
+    /// `[N, l]`: the actor loss's weights on real steps: `1 / len` (`actor_weights =
+    /// "per_window"`) or `1 / l` (`per_step`); a window-of-k agent's: 1 on the first step.
     pub(super) actor_w: Tensor,
     pub(super) scan_len: Vec<usize>,
     /// Stored acting-time actor states `[1, N, H]` (when burning in from them).
@@ -217,8 +218,9 @@ impl BatchSpec<'_> {
                 mask[i * ll + j] = 1.0;
                 boot_coef[i * ll + j] = gamma.powi((len - j) as i32);
                 // Window-of-k: the actor trains where its state matches acting, step 0.
-                actor_w[i * ll + j] = match self.cfg.act_window {
-                    0 => 1.0 / len as f64,
+                actor_w[i * ll + j] = match (self.cfg.act_window, self.cfg.actor_weights) {
+                    (0, ActorWeights::PerWindow) => 1.0 / len as f64,
+                    (0, ActorWeights::PerStep) => 1.0 / ll as f64,
                     _ => f64::from(u8::from(j == 0)),
                 };
                 critic_w[i * ll + j] = td_w[j];

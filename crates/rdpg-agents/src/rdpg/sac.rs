@@ -34,12 +34,13 @@
 //!    With `sac.tqc` the critics output atoms and the target is TQC's truncated mixture, the
 //!    loss the quantile Huber loss (`tqc.rs`).
 //! 3. **Actor** (Eqs. (7) and (9)):
-//!    `J_pi = 1/N sum_n 1/len_n sum_{i < len_n} [alpha log pi(a~_i | o_i) - min_j Q_j(o_i, a~_i | h^C_{i-1})]`,
+//!    `J_pi = 1/N sum_n sum_{i < len_n} v_{n,i} [alpha log pi(a~_i | o_i) - min_j Q_j(o_i, a~_i | h^C_{i-1})]`,
+//!    `v` RDPG's actor weights (`actor_weights`: `1/len_n` by default, or `1/l`),
 //!    `a~_i` a fresh reparameterised sample at every step; without BPTT (the default) the
 //!    actor's state before each step is a constant, as for RDPG. Adam. With `sac.tqc` the
 //!    mean over critics (of their atoms' means) replaces the min.
 //! 4. **Temperature** (Eq. (18), in `log alpha` as the authors' softlearning code steps it):
-//!    `J(log alpha) = -log alpha * 1/N sum_n 1/len_n sum_i (log pi(a~_i | o_i) + H_target)`, the
+//!    `J(log alpha) = -log alpha * 1/N sum_n sum_i v_{n,i} (log pi(a~_i | o_i) + H_target)`, the
 //!    log-probabilities of step 3 held constant; Adam. Skipped when `learn_alpha = false`.
 //! 5. **Targets**: `theta'_j <- theta'_j + tau (theta_j - theta'_j)` for the critics.
 //!
@@ -300,7 +301,7 @@ pub(super) fn squashed_sample(m: &Tensor, log_s: &Tensor, eps: &Tensor) -> (Tens
 }
 
 /// Step 3's loss `1/N sum_n sum_i w_{n,i} [alpha log pi(a~_i) - min_j Q_j(o_i, a~_i |
-/// h^C_{i-1})]` (`w = actor_w`: `1/len_n` on real steps) with gradient into the actor, and the
+/// h^C_{i-1})]` (`w = actor_w`: `1/len_n` or `1/l` on real steps, by `actor_weights`) with gradient into the actor, and the
 /// log-probabilities `[N*l]`. `critic_states[j]` are critic `j`'s `(h_{i-1}, c_{i-1})`,
 /// `[N, l, Hc]`; `eps` is `[N*l, A]`.
 pub(super) fn soft_actor_loss(

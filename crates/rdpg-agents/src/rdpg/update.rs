@@ -21,7 +21,9 @@
 //!    window, not renormalised for short windows: `rdpg_core::targets`); the critic is
 //!    back-propagated through time over the window (the "optimisation length"). Adam with L2.
 //! 3. **Actor** (paper Eq. (DPG), Algorithm 1 line "Get Actor gradient"):
-//!    `J = -1/N sum_n 1/len_n sum_{i < len_n} Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})`. Without
+//!    `J = -1/N sum_n sum_{i < len_n} v_{n,i} Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})`, with
+//!    `v_{n,i} = 1/len_n` (`actor_weights = "per_window"`, the default) or `1/l` (`per_step`,
+//!    every replayed step alike); a window-of-k agent: 1 on the first step alone. Without
 //!    BPTT (paper Section III-A.3, the default) the actor state `h^A_{i-1}` fed to step `i` is a
 //!    constant: the actor is run along the window without gradient to get the states, then every
 //!    step is recomputed from its detached previous state in one batched call over `N * l`.
@@ -787,7 +789,8 @@ pub(super) enum ActorInput<'a> {
     Bptt { h0: &'a RecState },
 }
 
-/// `-1/N sum_n 1/len_n sum_i Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})` (paper Eq. (DPG)),
+/// `-1/N sum_n sum_i v_{n,i} Q(o_i, mu(o_i | h^A_{i-1}) | h^C_{i-1})` (paper Eq. (DPG);
+/// `v = actor_w`, see `actor_weights`),
 /// and the actions `mu(o_i | h^A_{i-1})` it differentiates through, `[N*l, A]` (FORK's term
 /// reuses them). `critic_states` are the critic's `(h_{i-1}, c_{i-1})`, `[N, l, Hc]`.
 pub(super) fn actor_loss(

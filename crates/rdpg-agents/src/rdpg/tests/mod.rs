@@ -8,7 +8,7 @@ use tch::{Device, Kind, Tensor};
 
 use super::agent::RdpgAgent;
 use super::bench::synthetic_batch;
-use super::config::{ForkConfig, RdpgConfig, ScanMethod, Trunk};
+use super::config::{ActorWeights, ForkConfig, RdpgConfig, ScanMethod, Trunk};
 use super::lstm::RecState;
 use super::prepared::Prepared;
 use super::update::{

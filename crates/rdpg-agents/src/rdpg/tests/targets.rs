@@ -82,6 +82,24 @@ fn critic_weights_and_loss_hand_computed() {
         1e-12,
         "v",
     );
+    // per_step: 1/l on every real step, the short window's step no heavier than the others.
+    let per_step = RdpgAgent::new_with_kind(
+        RdpgConfig {
+            actor_weights: ActorWeights::PerStep,
+            ..agent.config().clone()
+        },
+        2,
+        1,
+        0,
+        Kind::Double,
+    )
+    .unwrap();
+    assert_close(
+        &to_vec64(&per_step.prepare(&b).actor_w),
+        &[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 0.0, 0.0],
+        1e-12,
+        "v per step",
+    );
     let y = Tensor::from_slice(&[1.0f64, 2.0, 3.0, 4.0, 5.0, 6.0]).view([2, 3]);
     let q = Tensor::from_slice(&[0.0f64, 0.0, 100.0, 2.0, 100.0, 100.0]).view([2, 3]);
     let loss = critic_loss_from(&p, &q, &y).double_value(&[]);
