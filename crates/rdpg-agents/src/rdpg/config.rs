@@ -333,7 +333,7 @@ impl Default for RdpgConfig {
     }
 }
 
-fn bad(field: &'static str, reason: impl Into<String>) -> AgentError {
+pub(super) fn bad(field: &'static str, reason: impl Into<String>) -> AgentError {
     AgentError::Config {
         field,
         reason: reason.into(),
@@ -361,7 +361,7 @@ fn width(field: &'static str, v: usize) -> Result<()> {
     Ok(())
 }
 
-fn finite_pos(field: &'static str, v: f64) -> Result<()> {
+pub(super) fn finite_pos(field: &'static str, v: f64) -> Result<()> {
     if !(is_f32(v) && v > 0.0) {
         return Err(bad(field, format!("must be finite and > 0, got {v}")));
     }
@@ -623,73 +623,6 @@ impl RdpgConfig {
         }
         if let Some(sac) = &self.sac {
             self.validate_sac(sac)?;
-        }
-        Ok(())
-    }
-
-    /// SAC's own settings, and the deterministic learner's options that do not apply to it,
-    /// refused by name.
-    fn validate_sac(&self, sac: &SacConfig) -> Result<()> {
-        finite_pos("sac.init_alpha", sac.init_alpha)?;
-        finite_pos("sac.lr_alpha", sac.lr_alpha)?;
-        if sac.target_entropy.is_some_and(|h| !is_f32(h)) {
-            return Err(bad("sac.target_entropy", "must be finite"));
-        }
-        if let Some(t) = &sac.tqc {
-            if t.quantiles == 0 || t.quantiles > 1000 {
-                return Err(bad("sac.tqc.quantiles", "must be in 1..=1000"));
-            }
-            if t.drop_per_critic >= t.quantiles {
-                return Err(bad(
-                    "sac.tqc.drop_per_critic",
-                    format!(
-                        "must be below quantiles ({}): every critic keeps an atom",
-                        t.quantiles
-                    ),
-                ));
-            }
-        }
-        let refuse = |field: &'static str, why: &str| {
-            Err(bad(
-                field,
-                format!("does not apply to sac (algo = \"sac\"): {why}"),
-            ))
-        };
-        if self.target_noise.is_some() {
-            return refuse(
-                "target_noise",
-                "its bootstrap action is sampled from the policy",
-            );
-        }
-        if self.policy_delay != 1 {
-            return refuse(
-                "policy_delay",
-                "the actor and the temperature step on every update",
-            );
-        }
-        if self.fork.is_some() {
-            return refuse("fork", "FORK's term is written for a deterministic actor");
-        }
-        if self.parallel_twins {
-            return refuse("parallel_twins", "its update runs on one thread");
-        }
-        if !self.actor_uses_updated_critic {
-            return refuse(
-                "actor_uses_updated_critic",
-                "false: its actor reads the critics after their step",
-            );
-        }
-        if self.tau == 0.0 {
-            return refuse(
-                "tau",
-                "0 (no target critics): SAC bootstraps from target critics",
-            );
-        }
-        if self.critic_target != CriticTarget::TailBootstrap {
-            return refuse(
-                "critic_target",
-                "only the tail-step bootstrap (\"tail_bootstrap\") has a soft version here",
-            );
         }
         Ok(())
     }
