@@ -9,6 +9,7 @@
 use crate::common::config::is_f32;
 use serde::{Deserialize, Serialize};
 
+pub use super::options::{ActorWeights, CriticTarget, ScanMethod};
 pub use super::sac_config::{SacConfig, TqcConfig, LOG_STD_RANGE};
 use crate::common::tensor::DeviceSpec;
 use crate::error::{AgentError, Result};
@@ -28,49 +29,6 @@ pub enum Trunk {
         /// Width of each hidden layer; the last one is the embedding size. Must be non-empty.
         hidden: Vec<usize>,
     },
-}
-
-/// How the no-gradient scan (burn-in) handles windows whose scan is shorter than `s`
-/// (left-padded windows near an episode start). Both give the state after exactly
-/// `scan_len` real steps from the initial state; padding never touches it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ScanMethod {
-    /// Windows grouped by their scan length, each group one call of the fused LSTM kernel
-    /// over its real steps (one call in all when every window has a full scan, the common
-    /// case; a few more for the shorter scans of windows near an episode start). The default.
-    Grouped,
-    /// One LSTM cell step per scan step over the whole batch; the state of windows still in
-    /// their padding is kept with a mask (`where`). Competitive when most windows are short
-    /// (short episodes).
-    MaskedLoop,
-}
-
-/// How the actor loss (Eq. (DPG)) weighs the steps of the replayed windows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ActorWeights {
-    /// `1/len_n` on each real step of window `n`: every window weighs the same, so the steps
-    /// of the short windows at an episode's end weigh more (with windows of `l = 8`, an
-    /// episode's last step up to `1 + 1/2 + ... + 1/8 = 2.7` times a middle one). The default.
-    PerWindow,
-    /// `1/l` on every real step: every replayed step weighs the same wherever its window
-    /// ends, as the expectation over visited states of Eq. (DPG) reads and as the critic's
-    /// interpolated TD weights do (they are not renormalised for short windows either).
-    PerStep,
-}
-
-/// How the critic's regression targets are built.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum CriticTarget {
-    /// The paper's tail-step bootstrap of the interpolated TD(λ): every step of a window
-    /// bootstraps from the single `Q'` at the window's tail (Eq. (unsyncedinterpolatedTD)).
-    TailBootstrap,
-    /// The classic RDPG of Heess et al. (2015): per-step TD(0), each step bootstrapping from
-    /// `Q'` at the next step along the window (with `update_len = opt_len`, `lambda = 1`,
-    /// `actor_bptt = true`, `scan_len = 0` and target networks, the paper's Table I baseline).
-    PerStepTd0,
 }
 
 /// Target policy smoothing (TD3): clipped Gaussian noise on the bootstrap action.
@@ -333,7 +291,7 @@ impl Default for RdpgConfig {
     }
 }
 
-pub(super) fn bad(field: &'static str, reason: impl Into<String>) -> AgentError {
+fn bad(field: &'static str, reason: impl Into<String>) -> AgentError {
     AgentError::Config {
         field,
         reason: reason.into(),
@@ -361,7 +319,7 @@ fn width(field: &'static str, v: usize) -> Result<()> {
     Ok(())
 }
 
-pub(super) fn finite_pos(field: &'static str, v: f64) -> Result<()> {
+fn finite_pos(field: &'static str, v: f64) -> Result<()> {
     if !(is_f32(v) && v > 0.0) {
         return Err(bad(field, format!("must be finite and > 0, got {v}")));
     }
@@ -623,6 +581,73 @@ impl RdpgConfig {
         }
         if let Some(sac) = &self.sac {
             self.validate_sac(sac)?;
+        }
+        Ok(())
+    }
+
+    /// SAC's own settings, and the deterministic learner's options that do not apply to it,
+    /// refused by name.
+    fn validate_sac(&self, sac: &SacConfig) -> Result<()> {
+        finite_pos("sac.init_alpha", sac.init_alpha)?;
+        finite_pos("sac.lr_alpha", sac.lr_alpha)?;
+        if sac.target_entropy.is_some_and(|h| !is_f32(h)) {
+            return Err(bad("sac.target_entropy", "must be finite"));
+        }
+        if let Some(t) = &sac.tqc {
+            if t.quantiles == 0 || t.quantiles > 1000 {
+                return Err(bad("sac.tqc.quantiles", "must be in 1..=1000"));
+            }
+            if t.drop_per_critic >= t.quantiles {
+                return Err(bad(
+                    "sac.tqc.drop_per_critic",
+                    format!(
+                        "must be below quantiles ({}): every critic keeps an atom",
+                        t.quantiles
+                    ),
+                ));
+            }
+        }
+        let refuse = |field: &'static str, why: &str| {
+            Err(bad(
+                field,
+                format!("does not apply to sac (algo = \"sac\"): {why}"),
+            ))
+        };
+        if self.target_noise.is_some() {
+            return refuse(
+                "target_noise",
+                "its bootstrap action is sampled from the policy",
+            );
+        }
+        if self.policy_delay != 1 {
+            return refuse(
+                "policy_delay",
+                "the actor and the temperature step on every update",
+            );
+        }
+        if self.fork.is_some() {
+            return refuse("fork", "FORK's term is written for a deterministic actor");
+        }
+        if self.parallel_twins {
+            return refuse("parallel_twins", "its update runs on one thread");
+        }
+        if !self.actor_uses_updated_critic {
+            return refuse(
+                "actor_uses_updated_critic",
+                "false: its actor reads the critics after their step",
+            );
+        }
+        if self.tau == 0.0 {
+            return refuse(
+                "tau",
+                "0 (no target critics): SAC bootstraps from target critics",
+            );
+        }
+        if self.critic_target != CriticTarget::TailBootstrap {
+            return refuse(
+                "critic_target",
+                "only the tail-step bootstrap (\"tail_bootstrap\") has a soft version here",
+            );
         }
         Ok(())
     }

@@ -32,6 +32,7 @@ pub mod inject;
 pub mod lstm;
 pub mod nets;
 pub mod off_policy;
+mod options;
 mod prepared;
 pub mod profile;
 mod sac;

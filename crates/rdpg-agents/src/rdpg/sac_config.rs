@@ -1,12 +1,7 @@
-//! Soft actor-critic's settings (`[agent.sac]`): the temperature and TQC's critics, and their
-//! checks (`RdpgConfig::validate_sac`, called by `RdpgConfig::validate` in `config.rs`): SAC's
-//! own values, and the deterministic learner's options that do not apply to it.
+//! Soft actor-critic's settings (`[agent.sac]`): the temperature and TQC's critics. Checked
+//! with the rest of the learner's config in `RdpgConfig::validate` (`config.rs`).
 
 use serde::{Deserialize, Serialize};
-
-use super::config::{bad, finite_pos, CriticTarget, RdpgConfig};
-use crate::common::config::is_f32;
-use crate::error::Result;
 
 /// Soft actor-critic (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"):
 /// the actor is a squashed Gaussian `a = tanh(u)`, `u ~ N(m(o), s(o)^2)`, whose output layer
@@ -76,72 +71,3 @@ impl SacConfig {
 
 /// The range a SAC actor's log standard deviation is clamped to (Stable-Baselines3's).
 pub const LOG_STD_RANGE: (f64, f64) = (-20.0, 2.0);
-
-impl RdpgConfig {
-    /// SAC's own settings, and the deterministic learner's options that do not apply to it,
-    /// refused by name.
-    pub(super) fn validate_sac(&self, sac: &SacConfig) -> Result<()> {
-        finite_pos("sac.init_alpha", sac.init_alpha)?;
-        finite_pos("sac.lr_alpha", sac.lr_alpha)?;
-        if sac.target_entropy.is_some_and(|h| !is_f32(h)) {
-            return Err(bad("sac.target_entropy", "must be finite"));
-        }
-        if let Some(t) = &sac.tqc {
-            if t.quantiles == 0 || t.quantiles > 1000 {
-                return Err(bad("sac.tqc.quantiles", "must be in 1..=1000"));
-            }
-            if t.drop_per_critic >= t.quantiles {
-                return Err(bad(
-                    "sac.tqc.drop_per_critic",
-                    format!(
-                        "must be below quantiles ({}): every critic keeps an atom",
-                        t.quantiles
-                    ),
-                ));
-            }
-        }
-        let refuse = |field: &'static str, why: &str| {
-            Err(bad(
-                field,
-                format!("does not apply to sac (algo = \"sac\"): {why}"),
-            ))
-        };
-        if self.target_noise.is_some() {
-            return refuse(
-                "target_noise",
-                "its bootstrap action is sampled from the policy",
-            );
-        }
-        if self.policy_delay != 1 {
-            return refuse(
-                "policy_delay",
-                "the actor and the temperature step on every update",
-            );
-        }
-        if self.fork.is_some() {
-            return refuse("fork", "FORK's term is written for a deterministic actor");
-        }
-        if self.parallel_twins {
-            return refuse("parallel_twins", "its update runs on one thread");
-        }
-        if !self.actor_uses_updated_critic {
-            return refuse(
-                "actor_uses_updated_critic",
-                "false: its actor reads the critics after their step",
-            );
-        }
-        if self.tau == 0.0 {
-            return refuse(
-                "tau",
-                "0 (no target critics): SAC bootstraps from target critics",
-            );
-        }
-        if self.critic_target != CriticTarget::TailBootstrap {
-            return refuse(
-                "critic_target",
-                "only the tail-step bootstrap (\"tail_bootstrap\") has a soft version here",
-            );
-        }
-        Ok(())
-    }
-}
