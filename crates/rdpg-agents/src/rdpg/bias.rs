@@ -89,6 +89,26 @@ pub struct EstimationBias {
     pub critics: Vec<CriticBias>,
 }
 
+/// Running sums of one critic line over measured steps.
+#[derive(Debug, Clone, Default)]
+struct Sums {
+    q: f64,
+    g: f64,
+    abs_g: f64,
+    bias: f64,
+    sq: f64,
+}
+
+impl Sums {
+    fn add(&mut self, q: f64, g: f64) {
+        self.q += q;
+        self.g += g;
+        self.abs_g += g.abs();
+        self.bias += q - g;
+        self.sq += (q - g).powi(2);
+    }
+}
+
 /// Steps left out at the end of a truncated episode: the fewest `h` with `gamma^h <= 1 %`.
 pub fn truncated_tail(gamma: f64) -> usize {
     if gamma <= TAIL_WEIGHT {
@@ -190,9 +210,10 @@ pub fn estimation_bias(
     let tail = truncated_tail(gamma);
     let n_critics = agent.critics().len();
     let lines = if n_critics > 1 { n_critics + 1 } else { 1 };
-    // Per line: (Q, G) pairs over all measured steps, and each episode's mean bias.
-    let mut pairs: Vec<Vec<(f64, f64)>> = vec![Vec::new(); lines];
+    // Per line: running sums over the measured steps, and each episode's mean bias.
+    let mut sums = vec![Sums::default(); lines];
     let mut per_episode: Vec<Vec<f64>> = vec![Vec::new(); lines];
+    let mut steps_measured = 0;
     let mut out = Vec::with_capacity(episodes.min(4096));
     let mut policy = RdpgPolicy::new(agent);
     for ep_seed in seeds {
@@ -244,28 +265,27 @@ pub fn estimation_bias(
             qs.push(min);
         }
         for (line, q) in qs.iter().enumerate() {
-            let here: Vec<(f64, f64)> = (0..measured).map(|t| (q[t], g[t])).collect();
-            per_episode[line].push(here.iter().map(|(q, g)| q - g).sum::<f64>() / measured as f64);
-            pairs[line].extend(here);
+            let before = sums[line].bias;
+            for t in 0..measured {
+                sums[line].add(q[t], g[t]);
+            }
+            per_episode[line].push((sums[line].bias - before) / measured as f64);
         }
+        steps_measured += measured;
     }
-    let steps_measured = pairs[0].len();
     if steps_measured == 0 {
         return Err(AgentError::Input(format!(
             "no step measured: every episode was truncated within its last {tail} steps, \
              whose returns the time limit cuts short (gamma {gamma})"
         )));
     }
-    let critics = pairs
+    let m = steps_measured as f64;
+    let critics = sums
         .iter()
         .zip(&per_episode)
         .enumerate()
-        .map(|(line, (p, eps))| {
-            let m = p.len() as f64;
-            let mean_q = p.iter().map(|(q, _)| q).sum::<f64>() / m;
-            let mean_return = p.iter().map(|(_, g)| g).sum::<f64>() / m;
-            let mean_abs = p.iter().map(|(_, g)| g.abs()).sum::<f64>() / m;
-            let mse = p.iter().map(|(q, g)| (q - g).powi(2)).sum::<f64>() / m;
+        .map(|(line, (sum, eps))| {
+            let (mean_q, mean_return) = (sum.q / m, sum.g / m);
             CriticBias {
                 critic: if line < n_critics {
                     format!("critic {line}")
@@ -275,8 +295,8 @@ pub fn estimation_bias(
                 mean_q,
                 mean_return,
                 mean_bias: mean_q - mean_return,
-                relative_bias: (mean_q - mean_return) / mean_abs,
-                rmse: mse.sqrt(),
+                relative_bias: (mean_q - mean_return) / (sum.abs_g / m),
+                rmse: (sum.sq / m).sqrt(),
                 episode_std: mean_std(eps).1,
             }
         })
