@@ -440,7 +440,14 @@ pub fn model_card(entry: &str, zs: &ZooSummary, exp: &crate::experiment::Experim
     );
     let _ = writeln!(md, "| reproduce | `{}` |", zs.reproduce);
     for teacher in &zs.teachers {
-        let _ = writeln!(md, "| injection | taught by `{}` |", teacher.file);
+        let _ = writeln!(
+            md,
+            "| injection | taught by `{}`: {} episodes (mean {:.1} stock) of {} |",
+            teacher.file,
+            teacher.episodes,
+            teacher.mean_stock_return,
+            teacher.label()
+        );
     }
     let _ = writeln!(
         md,

@@ -568,6 +568,22 @@ fn train_writes_a_run_directory_resumes_and_evals() {
             .unwrap();
     assert_eq!(teachers[0]["checkpoint"], "latest");
     assert_eq!(teachers[0]["episodes"], 4);
+    // Its zoo card names the teacher file, its episodes and the teacher's own test.
+    let shipped = tmp("zoo-student");
+    let _ = std::fs::remove_dir_all(&shipped);
+    ok(rdpg()
+        .args(["zoo", "--episodes", "2", "--gif-steps", "5", "--run"])
+        .arg(&student)
+        .arg("--out")
+        .arg(&shipped));
+    let card = std::fs::read_to_string(shipped.join("README.md")).unwrap();
+    assert!(
+        card.contains(&format!(
+            "| injection | taught by `{}`: 4 episodes (mean ",
+            teacher.display()
+        )) && card.contains("stock) of cue-rdpg (rdpg, latest; no test) |"),
+        "{card}"
+    );
     // `rdpg table` names the teacher beside the student's row too.
     let out = ok(rdpg().arg("table").arg(&student));
     assert!(
