@@ -46,14 +46,7 @@ pub fn run(a: &BiasArgs) -> Result<()> {
             exp.algo.as_str()
         );
     }
-    if a.checkpoint != Which::Best && run.is_zoo_entry() {
-        bail!(
-            "{} is a zoo entry: it ships one agent, so drop --checkpoint {}",
-            a.run.display(),
-            a.checkpoint
-        );
-    }
-    let dir = run.agent(a.checkpoint);
+    let dir = run.existing_agent(a.checkpoint)?;
     verify_agent(&dir).with_context(|| format!("checking {}", dir.display()))?;
     let agent = RdpgAgent::load_weights(&dir)
         .with_context(|| format!("loading the agent of {}", dir.display()))?;

@@ -388,6 +388,15 @@ impl RunDir {
     /// The run's experiment and its agent `which` as a deterministic policy.
     pub fn policy(&self, which: Which) -> Result<(Experiment, Box<dyn DeterministicPolicy>)> {
         let exp = self.experiment()?;
+        let dir = self.existing_agent(which)?;
+        let policy = rdpg_agents::load_policy(exp.algo, &dir)
+            .with_context(|| format!("loading {}", dir.display()))?;
+        Ok((exp, policy))
+    }
+
+    /// The folder of agent `which` ([`RunDir::agent`]), refused with a hint when it does not
+    /// exist, or when `which` names a checkpoint of a zoo entry (it ships one agent).
+    pub fn existing_agent(&self, which: Which) -> Result<PathBuf> {
         if which != Which::Best && self.is_zoo_entry() {
             anyhow::bail!(
                 "{} is a zoo entry: it ships one agent (the run's best or selected one), so \
@@ -405,9 +414,7 @@ impl RunDir {
             };
             anyhow::bail!("{} holds no agent{hint}", dir.display());
         }
-        let policy = rdpg_agents::load_policy(exp.algo, &dir)
-            .with_context(|| format!("loading {}", dir.display()))?;
-        Ok((exp, policy))
+        Ok(dir)
     }
 
     /// Every metric row of `metrics.jsonl`, in order. A torn last row (a crash while it was
