@@ -493,7 +493,7 @@ fn defining_settings(exp: &Experiment) -> serde_json::Value {
 
 /// Measured cost of one trial of `exp` on this machine: seconds of one agent step (the
 /// environment's frames) and of one update (`rdpg bench update` on its config and threads,
-/// timed over about a second of updates).
+/// timed over about half a second of updates).
 fn estimate_hours(exp: &Experiment, threads: usize) -> Result<(f64, &'static str)> {
     let t = &exp.train;
     let mut env = rdpg_envs::make_with(&t.env, &t.env_options())?;
@@ -519,14 +519,14 @@ fn estimate_hours(exp: &Experiment, threads: usize) -> Result<(f64, &'static str
                 num_threads: Some(threads),
                 ..agent.clone()
             };
-            // A first rate from 3 updates sizes a timing of about a second: a few updates
-            // of a few milliseconds each would swing the estimate with the machine's load.
+            // A first rate from 3 updates sizes a timing of about half a second, as the env's:
+            // a few updates of a few milliseconds each would swing with the machine's load.
             let bench = |iters| {
                 rdpg_agents::rdpg::bench::bench_update_with(&cfg, obs, space.dim(), 0.0, iters)
             };
             let rough = bench(3)?.updates_per_sec;
-            let ups = if rough > 3.0 {
-                bench((rough.min(500.0)) as usize)?.updates_per_sec
+            let ups = if rough > 6.0 {
+                bench((rough * 0.5).min(500.0) as usize)?.updates_per_sec
             } else {
                 rough
             };
