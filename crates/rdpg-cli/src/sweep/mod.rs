@@ -27,7 +27,7 @@
 //! threads = 1                              # libtorch threads per trial
 //! set = ["train.test_episodes=200"]        # overrides for every row (before the row's)
 //! results = "results/table1-cpu"           # default: results/<name>
-//! order = "seeds"                          # default "rows": every row's seed 0, then seed 1, ...
+//! order = "seeds"                          # every row's seed 0, then seed 1, ... (default "rows": row by row)
 //! keep_chosen_agents = true                # default false: also keep each chosen agent
 //! [grid]                                   # optional: every row × every combination
 //! "agent.opt_len" = [4, 8]
