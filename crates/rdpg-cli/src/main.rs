@@ -8,13 +8,15 @@
 //! an agent), `sweep` (rows × seeds on Ray Tune), `table` (seed-aggregated tables and curves),
 //! `claims` (the paper's claims checked on the sweeps' results), `staleness` (how stale the
 //! recurrent states of a run's replayed windows are), `bias` (its critics against the returns
-//! they predict), `bench` (throughput).
+//! they predict), `preference` (which actions its critics prefer, its actor's or another
+//! run's), `bench` (throughput).
 
 mod bench;
 mod bias;
 mod claims;
 mod eval;
 mod experiment;
+mod preference;
 mod render;
 mod report;
 mod rollout;
@@ -75,6 +77,9 @@ enum Command {
     /// A run's critics against the discounted returns of its deterministic policy's episodes
     /// on the training reward (TD3's estimation bias).
     Bias(bias::BiasArgs),
+    /// Which actions a run's critics prefer along its own episodes: its actor's or another
+    /// run's policy's (shown the same observations).
+    Preference(preference::PreferenceArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -98,6 +103,7 @@ fn main() -> Result<()> {
         Command::Claims(a) => claims::run(&a),
         Command::Staleness(a) => staleness::run(&a),
         Command::Bias(a) => bias::run(&a),
+        Command::Preference(a) => preference::run(&a),
         Command::Bench(b) => bench::run(&b),
     }
 }

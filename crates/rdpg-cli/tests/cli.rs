@@ -387,6 +387,41 @@ fn train_writes_a_run_directory_resumes_and_evals() {
     let table = ok(rdpg().args(["bias", "--episodes", "2", "--run"]).arg(&one));
     let table = String::from_utf8_lossy(&table.stdout).to_string();
     assert!(table.contains("(2 terminated, 0 truncated") && table.contains("| critic 0 |"));
+    // Its latest agent's critics value its best agent's actions beside their own; a policy
+    // of another environment is refused.
+    let pref = ok(rdpg()
+        .args([
+            "preference",
+            "--episodes",
+            "2",
+            "--checkpoint",
+            "latest",
+            "--json",
+        ])
+        .arg("--run")
+        .arg(&one)
+        .arg("--versus")
+        .arg(&one));
+    let pref: Value = serde_json::from_slice(&pref.stdout).unwrap();
+    assert_eq!(
+        (pref["episodes"].as_u64(), pref["truncated"].as_u64()),
+        (Some(2), Some(0))
+    );
+    let pref_lines: Vec<&Value> = pref["lines"].as_array().unwrap().iter().collect();
+    assert!(pref_lines.iter().all(|l| l["steps"] == 12), "{pref}");
+    assert!(
+        pref_lines.iter().any(|l| l["steps_of"] == "terminated"),
+        "{pref}"
+    );
+    let walker = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../zoo/walker-td3");
+    fails(
+        rdpg()
+            .args(["preference", "--run"])
+            .arg(&one)
+            .arg("--versus")
+            .arg(&walker),
+        &["BipedalWalker-v3", "must act on the same steps"],
+    );
     let lines: Vec<Value> = std::fs::read_to_string(one.join("metrics.jsonl"))
         .unwrap()
         .lines()

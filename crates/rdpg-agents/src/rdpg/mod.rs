@@ -15,8 +15,9 @@
 //!   [`checkpoint`]: save and load.
 //! * [`trainer`]: [`OffPolicyTrainer`], Algorithm 1's outer loop; [`inject`]: experience
 //!   injection from teacher files.
-//! * [`staleness`] and [`bias`]: diagnostics of a trained agent (the recurrent states its
-//!   updates start from; its critics' estimation bias).
+//! * [`staleness`], [`bias`] and [`preference`]: diagnostics of a trained agent (the
+//!   recurrent states its updates start from; its critics' estimation bias; which actions its
+//!   critics prefer, its actor's or another policy's).
 //! * [`bench`](mod@bench): synthetic batches and the update benchmark; [`flops`]: the
 //!   update's counted FLOP and a matrix-product reference at its layer shapes.
 
@@ -33,6 +34,7 @@ pub mod lstm;
 pub mod nets;
 pub mod off_policy;
 mod options;
+pub mod preference;
 mod prepared;
 pub mod profile;
 mod sac;
@@ -50,6 +52,7 @@ pub use config::{
     TargetNoise, TqcConfig, Trunk,
 };
 pub use off_policy::{ExplorationConfig, OffPolicyConfig, ParamNoiseSpec, PerturbSchedule};
+pub use preference::{critic_preference, CriticPreference, PreferenceLine};
 pub use profile::PhaseTimes;
 pub use staleness::{state_staleness, Staleness, StartGap};
 pub use trainer::{OffPolicyTrainer, RdpgPolicy};

@@ -10,7 +10,7 @@ use crate::rdpg::config::SacConfig;
 use crate::rdpg::trainer::RdpgPolicy;
 
 /// A tiny MLP-trunk agent for `obs`/`act` sizes, twin critics, discount 0.9, in f64.
-fn agent(obs: usize, act: usize, window: usize) -> RdpgAgent {
+pub(super) fn agent(obs: usize, act: usize, window: usize) -> RdpgAgent {
     let base = match window {
         0 => mlp(4),
         k => RdpgConfig {
@@ -26,7 +26,7 @@ fn agent(obs: usize, act: usize, window: usize) -> RdpgAgent {
     RdpgAgent::new_with_kind(cfg, obs, act, 3, Kind::Double).unwrap()
 }
 
-fn train_cfg(env: &str) -> TrainConfig {
+pub(super) fn train_cfg(env: &str) -> TrainConfig {
     TrainConfig {
         env: env.into(),
         ..Default::default()

@@ -22,6 +22,7 @@ mod agent;
 mod bias;
 mod fork;
 mod gradients;
+mod preference;
 mod sac;
 mod sequences;
 mod staleness;
