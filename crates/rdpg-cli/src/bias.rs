@@ -3,7 +3,7 @@
 //! them against the discounted return of the rest of the episode. A Markdown table on stdout
 //! (`--json`: one JSON object).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -11,6 +11,7 @@ use rdpg_agents::common::checkpoint::verify_agent;
 use rdpg_agents::common::Algo;
 use rdpg_agents::rdpg::{estimation_bias, EstimationBias, RdpgAgent};
 
+use crate::experiment::Experiment;
 use crate::rundir::{RunDir, Which};
 
 /// Arguments of `rdpg bias`.
@@ -22,38 +23,53 @@ pub struct BiasArgs {
     /// Which agent of the run: best, latest, selected or the step of a kept agent.
     #[arg(long, default_value = "best")]
     checkpoint: Which,
+    #[command(flatten)]
+    episodes: EpisodeArgs,
+}
+
+/// The episodes a measurement of a run's critics runs, and its output.
+#[derive(Debug, Args)]
+pub struct EpisodeArgs {
     /// Episodes to run.
     #[arg(long, default_value_t = 10)]
-    episodes: usize,
+    pub episodes: usize,
     /// First seed (default: the run's validation seeds, `train.eval_seed`; the test seeds are
     /// for the test alone).
     #[arg(long)]
-    seed: Option<u64>,
+    pub seed: Option<u64>,
     /// One JSON object instead of the table.
     #[arg(long)]
-    json: bool,
+    pub json: bool,
+}
+
+/// The experiment and agent `which` of the deterministic actor-critic run (or zoo entry)
+/// `path`, whose critics `command` reads; another algorithm is refused.
+pub fn actor_critic(path: &Path, which: Which, command: &str) -> Result<(Experiment, RdpgAgent)> {
+    let run = RunDir::new(path);
+    let exp = run.experiment()?;
+    if !matches!(exp.algo, Algo::Rdpg | Algo::Ddpg) {
+        bail!(
+            "{} is a {} agent: `rdpg {command}` reads the critics of deterministic actor-critics \
+             (rdpg, ddpg), which estimate the deterministic policy's return",
+            path.display(),
+            exp.algo.as_str()
+        );
+    }
+    let dir = run.existing_agent(which)?;
+    verify_agent(&dir).with_context(|| format!("checking {}", dir.display()))?;
+    let agent = RdpgAgent::load_weights(&dir)
+        .with_context(|| format!("loading the agent of {}", dir.display()))?;
+    Ok((exp, agent))
 }
 
 /// `rdpg bias`.
 pub fn run(a: &BiasArgs) -> Result<()> {
-    let run = RunDir::new(&a.run);
-    let exp = run.experiment()?;
-    if !matches!(exp.algo, Algo::Rdpg | Algo::Ddpg) {
-        bail!(
-            "{} is a {} agent: `rdpg bias` measures deterministic actor-critics (rdpg, ddpg), \
-             whose critics estimate the deterministic policy's return",
-            a.run.display(),
-            exp.algo.as_str()
-        );
-    }
-    let dir = run.existing_agent(a.checkpoint)?;
-    verify_agent(&dir).with_context(|| format!("checking {}", dir.display()))?;
-    let agent = RdpgAgent::load_weights(&dir)
-        .with_context(|| format!("loading the agent of {}", dir.display()))?;
-    let seed = a.seed.unwrap_or(exp.train.eval_seed);
-    let b = estimation_bias(&agent, &exp.train, a.episodes, seed)
+    let (exp, agent) = actor_critic(&a.run, a.checkpoint, "bias")?;
+    let e = &a.episodes;
+    let seed = e.seed.unwrap_or(exp.train.eval_seed);
+    let b = estimation_bias(&agent, &exp.train, e.episodes, seed)
         .with_context(|| format!("measuring {}", a.run.display()))?;
-    if a.json {
+    if e.json {
         println!("{}", serde_json::to_string(&b)?);
     } else {
         let what = format!(

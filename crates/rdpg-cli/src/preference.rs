@@ -6,10 +6,9 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use rdpg_agents::common::checkpoint::verify_agent;
-use rdpg_agents::common::Algo;
-use rdpg_agents::rdpg::{critic_preference, CriticPreference, RdpgAgent};
+use rdpg_agents::rdpg::{critic_preference, CriticPreference};
 
+use crate::bias::EpisodeArgs;
 use crate::rundir::{RunDir, Which};
 
 /// Arguments of `rdpg preference`.
@@ -28,34 +27,13 @@ pub struct PreferenceArgs {
     /// Which agent of `--versus`.
     #[arg(long, default_value = "best")]
     versus_checkpoint: Which,
-    /// Episodes to run.
-    #[arg(long, default_value_t = 10)]
-    episodes: usize,
-    /// First seed (default: the run's validation seeds, `train.eval_seed`; the test seeds are
-    /// for the test alone).
-    #[arg(long)]
-    seed: Option<u64>,
-    /// One JSON object instead of the table.
-    #[arg(long)]
-    json: bool,
+    #[command(flatten)]
+    episodes: EpisodeArgs,
 }
 
 /// `rdpg preference`.
 pub fn run(a: &PreferenceArgs) -> Result<()> {
-    let run = RunDir::new(&a.run);
-    let exp = run.experiment()?;
-    if !matches!(exp.algo, Algo::Rdpg | Algo::Ddpg) {
-        bail!(
-            "{} is a {} agent: `rdpg preference` reads the critics of deterministic \
-             actor-critics (rdpg, ddpg)",
-            a.run.display(),
-            exp.algo.as_str()
-        );
-    }
-    let dir = run.existing_agent(a.checkpoint)?;
-    verify_agent(&dir).with_context(|| format!("checking {}", dir.display()))?;
-    let agent = RdpgAgent::load_weights(&dir)
-        .with_context(|| format!("loading the agent of {}", dir.display()))?;
+    let (exp, agent) = crate::bias::actor_critic(&a.run, a.checkpoint, "preference")?;
     let (other_exp, mut other) = RunDir::new(&a.versus).policy(a.versus_checkpoint)?;
     let (t, o) = (&exp.train, &other_exp.train);
     if (&t.env, t.action_repeat) != (&o.env, o.action_repeat) {
@@ -70,15 +48,16 @@ pub fn run(a: &PreferenceArgs) -> Result<()> {
             o.action_repeat
         );
     }
-    let seed = a.seed.unwrap_or(t.eval_seed);
-    let p = critic_preference(&agent, other.as_mut(), t, a.episodes, seed).with_context(|| {
+    let e = &a.episodes;
+    let seed = e.seed.unwrap_or(t.eval_seed);
+    let p = critic_preference(&agent, other.as_mut(), t, e.episodes, seed).with_context(|| {
         format!(
             "measuring {} against {}",
             a.run.display(),
             a.versus.display()
         )
     })?;
-    if a.json {
+    if e.json {
         println!("{}", serde_json::to_string(&p)?);
     } else {
         let what = format!(

@@ -164,6 +164,36 @@ fn critic_values(agent: &RdpgAgent, obs: &[f32], act: &[f32], steps: usize) -> V
     })
 }
 
+/// The episodes' seeds and the training environment a measurement of `agent` runs them on:
+/// 1 to [`MAX_EPISODES`] episodes, an environment of the agent's sizes.
+pub(super) fn measured_env(
+    agent: &RdpgAgent,
+    cfg: &TrainConfig,
+    episodes: usize,
+    seed: u64,
+) -> Result<(
+    impl Iterator<Item = u64>,
+    Box<dyn rdpg_envs::registry::AnyEnv>,
+)> {
+    if episodes == 0 || episodes > MAX_EPISODES {
+        return Err(AgentError::Input(format!(
+            "measure 1 to {MAX_EPISODES} episodes (got {episodes})"
+        )));
+    }
+    let seeds = episode_seeds(seed, episodes)?;
+    let env = rdpg_envs::make_with(&cfg.env, &cfg.env_options())?;
+    let (obs, act) = (env.observation_space().dim(), env.action_space().dim());
+    if (obs, act) != (agent.obs_dim(), agent.act_dim()) {
+        return Err(AgentError::Input(format!(
+            "{} gives observations/actions of sizes {obs}/{act}, the agent's are {}/{}",
+            cfg.env,
+            agent.obs_dim(),
+            agent.act_dim()
+        )));
+    }
+    Ok((seeds, env))
+}
+
 /// Measures `agent`'s critics' estimation bias (see the [module docs](self)) on `episodes`
 /// episodes of `cfg`'s training environment from seed `seed` on.
 ///
@@ -188,24 +218,8 @@ pub fn estimation_bias(
                 .into(),
         ));
     }
-    if episodes == 0 || episodes > MAX_EPISODES {
-        return Err(AgentError::Input(format!(
-            "measure 1 to {MAX_EPISODES} episodes (got {episodes})"
-        )));
-    }
-    let seeds = episode_seeds(seed, episodes)?;
-    let mut env = rdpg_envs::make_with(&cfg.env, &cfg.env_options())?;
+    let (seeds, mut env) = measured_env(agent, cfg, episodes, seed)?;
     let space = env.action_space().clone();
-    if (env.observation_space().dim(), space.low.len()) != (agent.obs_dim(), agent.act_dim()) {
-        return Err(AgentError::Input(format!(
-            "{} gives observations/actions of sizes {}/{}, the agent's are {}/{}",
-            cfg.env,
-            env.observation_space().dim(),
-            space.low.len(),
-            agent.obs_dim(),
-            agent.act_dim()
-        )));
-    }
     let gamma = acfg.gamma;
     let tail = truncated_tail(gamma);
     let n_critics = agent.critics().len();

@@ -21,10 +21,10 @@ use super::lstm::{scan_state, RecState};
 use super::staleness::scan_inputs;
 use super::RdpgAgent;
 use crate::common::config::TrainConfig;
-use crate::common::policy::{episode_seeds, to_env_action, DeterministicPolicy};
+use crate::common::policy::{to_env_action, DeterministicPolicy};
 use crate::common::tensor::tensor_to_vec64;
 use crate::error::{AgentError, Result};
-use crate::rdpg::bias::MAX_EPISODES;
+use crate::rdpg::bias::measured_env;
 use crate::rdpg::trainer::RdpgPolicy;
 
 /// One critic's preference over a set of steps.
@@ -122,9 +122,9 @@ fn both_values(
 /// # Errors
 ///
 /// A soft actor-critic agent (its critics value its stochastic policy), 0 or more than
-/// [`MAX_EPISODES`] episodes, seeds past the largest, an environment that does not match the
-/// agent's sizes, the other policy's error (e.g. an observation size it does not take), or a
-/// non-finite action or value.
+/// [`MAX_EPISODES`](super::bias::MAX_EPISODES) episodes, seeds past the largest, an
+/// environment that does not match the agent's sizes, the other policy's error (e.g. an
+/// observation size it does not take), or a non-finite action or value.
 pub fn critic_preference(
     agent: &RdpgAgent,
     other: &mut dyn DeterministicPolicy,
@@ -137,24 +137,8 @@ pub fn critic_preference(
             "a soft actor-critic's critics value its stochastic policy, not one action".into(),
         ));
     }
-    if episodes == 0 || episodes > MAX_EPISODES {
-        return Err(AgentError::Input(format!(
-            "measure 1 to {MAX_EPISODES} episodes (got {episodes})"
-        )));
-    }
-    let seeds = episode_seeds(seed, episodes)?;
-    let mut env = rdpg_envs::make_with(&cfg.env, &cfg.env_options())?;
+    let (seeds, mut env) = measured_env(agent, cfg, episodes, seed)?;
     let space = env.action_space().clone();
-    if (env.observation_space().dim(), space.low.len()) != (agent.obs_dim(), agent.act_dim()) {
-        return Err(AgentError::Input(format!(
-            "{} gives observations/actions of sizes {}/{}, the agent's are {}/{}",
-            cfg.env,
-            env.observation_space().dim(),
-            space.low.len(),
-            agent.obs_dim(),
-            agent.act_dim()
-        )));
-    }
     let n_critics = agent.critics().len();
     let lines = if n_critics > 1 { n_critics + 1 } else { 1 };
     // Per line and set (all, time limit, terminated): (steps, sum own, sum other, preferred).
