@@ -24,7 +24,8 @@ use serde::Serialize;
 use tch::{Kind, Tensor};
 
 use super::config::ScanMethod;
-use super::lstm::scan_state;
+use super::lstm::{scan_state, RecState};
+use super::nets::Critic;
 use super::staleness::scan_inputs;
 use super::RdpgAgent;
 use crate::common::config::TrainConfig;
@@ -131,37 +132,56 @@ fn discounted_returns(rewards: &[f64], gamma: f64) -> Vec<f64> {
 /// Each critic's `Q(o_t, a_t | h^C_{t-1})` along one episode, `obs [T, D]`, `act [T, A]`
 /// (see the [module docs](self)): one `Vec` of `T` values per critic.
 fn critic_values(agent: &RdpgAgent, obs: &[f32], act: &[f32], steps: usize) -> Vec<Vec<f64>> {
-    let (kind, device) = (agent.kind, agent.device());
-    let (d, a, n) = (agent.obs_dim() as i64, agent.act_dim() as i64, steps as i64);
-    let up = |v: &[f32], w: i64| {
-        Tensor::from_slice(v)
-            .view([1, n, w])
-            .to_kind(kind)
-            .to_device(device)
-    };
-    let (obs, act) = (up(obs, d), up(act, a)); // [1, T, D], [1, T, A]
-    let window = agent.config().act_window;
+    let obs = steps_tensor(agent, obs, steps, agent.obs_dim()); // [T, D]
+    let act = steps_tensor(agent, act, steps, agent.act_dim()); // [T, A]
     tch::no_grad(|| {
         agent
             .critics()
             .iter()
             .map(|critic| {
-                let q = if window == 0 {
-                    let zero = critic.core.zero_state(1, kind, device);
-                    critic.forward_seq(&obs, &act, &zero).0.select(0, 0) // [T]
-                } else {
-                    // The k - 1 steps before each t from a zero state, then step t.
-                    let ts: Vec<usize> = (0..steps).collect();
-                    let x = critic.input_seq(&obs, &act); // [1, T, E]
-                    let (xs, real) = scan_inputs(&x, &ts, window - 1);
-                    let zero = critic.core.zero_state(n, kind, device);
-                    let s = scan_state(&critic.core, &xs, &real, &zero, ScanMethod::Grouped);
-                    critic.step(&obs.select(0, 0), &act.select(0, 0), &s).0 // [T]
-                };
-                tensor_to_vec64(&q.to_kind(Kind::Double))
+                let before = critic_states_before(agent, critic, &obs, &act);
+                tensor_to_vec64(&critic.step(&obs, &act, &before).0.to_kind(Kind::Double))
+                // [T]
             })
             .collect()
     })
+}
+
+/// One episode's per-step values (`T * width` of them) as an agent's tensor `[T, width]`.
+pub(super) fn steps_tensor(agent: &RdpgAgent, v: &[f32], steps: usize, width: usize) -> Tensor {
+    Tensor::from_slice(v)
+        .view([steps as i64, width as i64])
+        .to_kind(agent.kind)
+        .to_device(agent.device())
+}
+
+/// `critic`'s state before each step `t` of one episode (`obs [T, D]`, `act [T, A]`), batched
+/// over the steps as a `[1, T, H]` state: carried from a zero state along the episode's
+/// actions, or, for a window-of-k agent, its `k - 1` steps before `t` re-encoded from zero (as
+/// it acts and trains). No gradient.
+pub(super) fn critic_states_before(
+    agent: &RdpgAgent,
+    critic: &Critic,
+    obs: &Tensor,
+    act: &Tensor,
+) -> RecState {
+    let (kind, device) = (agent.kind, agent.device());
+    let x = critic.input_seq(&obs.unsqueeze(0), &act.unsqueeze(0)); // [1, T, E]
+    match agent.config().act_window {
+        0 => {
+            let (h, c) = critic
+                .core
+                .states_before(&x, &critic.core.zero_state(1, kind, device));
+            RecState { h, c } // [1, T, H] each
+        }
+        window => {
+            let steps = obs.size()[0];
+            let ts: Vec<usize> = (0..steps as usize).collect();
+            let (xs, real) = scan_inputs(&x, &ts, window - 1);
+            let zero = critic.core.zero_state(steps, kind, device);
+            scan_state(&critic.core, &xs, &real, &zero, ScanMethod::Grouped)
+        }
+    }
 }
 
 /// The episodes' seeds and the training environment a measurement of `agent` runs them on:

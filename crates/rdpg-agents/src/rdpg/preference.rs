@@ -16,15 +16,12 @@
 use serde::Serialize;
 use tch::{Kind, Tensor};
 
-use super::config::ScanMethod;
-use super::lstm::{scan_state, RecState};
-use super::staleness::scan_inputs;
 use super::RdpgAgent;
 use crate::common::config::TrainConfig;
 use crate::common::policy::{to_env_action, DeterministicPolicy};
 use crate::common::tensor::tensor_to_vec64;
 use crate::error::{AgentError, Result};
-use crate::rdpg::bias::measured_env;
+use crate::rdpg::bias::{critic_states_before, measured_env, steps_tensor};
 use crate::rdpg::trainer::RdpgPolicy;
 
 /// One critic's preference over a set of steps.
@@ -69,44 +66,18 @@ fn both_values(
     alt: &[f32],
     steps: usize,
 ) -> Vec<(Vec<f64>, Vec<f64>)> {
-    let (kind, device) = (agent.kind, agent.device());
-    let (d, a, n) = (agent.obs_dim() as i64, agent.act_dim() as i64, steps as i64);
-    let up = |v: &[f32], w: i64| {
-        Tensor::from_slice(v)
-            .view([n, w])
-            .to_kind(kind)
-            .to_device(device)
-    };
-    let (obs, act, alt) = (up(obs, d), up(act, a), up(alt, a)); // [T, D], [T, A], [T, A]
-    let window = agent.config().act_window;
+    let obs = steps_tensor(agent, obs, steps, agent.obs_dim()); // [T, D]
+    let (act, alt) = (
+        steps_tensor(agent, act, steps, agent.act_dim()), // [T, A]
+        steps_tensor(agent, alt, steps, agent.act_dim()), // [T, A]
+    );
     let values = |q: Tensor| tensor_to_vec64(&q.to_kind(Kind::Double));
     tch::no_grad(|| {
         agent
             .critics()
             .iter()
             .map(|critic| {
-                // The state before each step t, batched over t: [1, T, H] each.
-                let before = if window == 0 {
-                    let mut s = critic.core.zero_state(1, kind, device);
-                    let (mut hs, mut cs) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
-                    for t in 0..n {
-                        hs.push(s.h.shallow_clone());
-                        cs.push(s.c.shallow_clone());
-                        s = critic
-                            .step(&obs.narrow(0, t, 1), &act.narrow(0, t, 1), &s)
-                            .1;
-                    }
-                    RecState {
-                        h: Tensor::cat(&hs, 1),
-                        c: Tensor::cat(&cs, 1),
-                    }
-                } else {
-                    let ts: Vec<usize> = (0..steps).collect();
-                    let x = critic.input_seq(&obs.unsqueeze(0), &act.unsqueeze(0)); // [1, T, E]
-                    let (xs, real) = scan_inputs(&x, &ts, window - 1);
-                    let zero = critic.core.zero_state(n, kind, device);
-                    scan_state(&critic.core, &xs, &real, &zero, ScanMethod::Grouped)
-                };
+                let before = critic_states_before(agent, critic, &obs, &act); // [1, T, H] each
                 (
                     values(critic.step(&obs, &act, &before).0), // [T]
                     values(critic.step(&obs, &alt, &before).0), // [T]
