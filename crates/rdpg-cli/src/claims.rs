@@ -274,12 +274,16 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
         let fewest = declared.iter().map(|d| d.1).min().unwrap_or(0);
         let links = sweeps
             .iter()
-            .map(|s| {
-                format!(
-                    "[{}]({})",
-                    s.file.name,
-                    s.results.join("table.md").display()
-                )
+            .zip(c.sweep.paths())
+            .map(|(s, path)| {
+                // The sweep's table once `rdpg table` has made one, else its ledger (what has
+                // run so far), else the sweep file itself: never a link to nothing.
+                let target = ["table.md", "ledger.md"]
+                    .iter()
+                    .map(|f| s.results.join(f))
+                    .find(|p| p.is_file())
+                    .unwrap_or_else(|| path.clone());
+                format!("[{}]({})", s.file.name, target.display())
             })
             .collect::<Vec<_>>()
             .join(", ");

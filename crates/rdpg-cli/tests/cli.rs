@@ -2221,7 +2221,8 @@ fn committed_tables_regenerate_from_their_result_files() {
 /// rows: injection above RDPG holds, the reverse ordering does not hold), and a sweep of 2
 /// seeds gets none (fig6-bptt: its interval excludes 0, yet 2 seeds cannot decide); a row the
 /// sweep does not have and an unknown key are refused by name. A claim across sweeps compares
-/// rows of one budget, each named row in exactly one of them.
+/// rows of one budget, each named row in exactly one of them, and links each sweep's table,
+/// else its ledger, else its file.
 #[test]
 fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
@@ -2308,6 +2309,42 @@ fn claims_are_judged_by_the_ci_of_the_iqm_difference() {
         )),
         &["row \"rdpg-paper\" is in more than one of its sweeps"],
     );
+    // A claim links each sweep's table, else its ledger, else the sweep file: never a file
+    // that does not exist.
+    let results = dir.join("results-new");
+    let sweep = dir.join("new.toml");
+    std::fs::write(
+        &sweep,
+        format!(
+            "name = \"new\"\ndescription = \"d\"\nseeds = [0, 1, 2]\nsteps = 1000000\n\
+             results = \"{}\"\n[[row]]\nname = \"new-row\"\n\
+             base = \"configs/hardcore-rdpg-paper.toml\"\n",
+            results.display()
+        ),
+    )
+    .unwrap();
+    let pair = format!(r#""sweeps/hardcore-1m.toml", "{}""#, sweep.display());
+    let link = |file: &Path| {
+        let out =
+            String::from_utf8(ok(&mut run(&across(&pair, "new-row", "td3-paper"))).stdout).unwrap();
+        let line = out
+            .lines()
+            .find(|l| l.starts_with("| c |"))
+            .unwrap()
+            .to_owned();
+        assert!(line.contains("waiting for new-row 0 of 3 seeds"), "{line}");
+        assert!(
+            line.contains(&format!("[new]({})", file.display())),
+            "{line} should link {}",
+            file.display()
+        );
+    };
+    link(&sweep);
+    std::fs::create_dir_all(&results).unwrap();
+    std::fs::write(results.join("ledger.md"), "# Ledger\n").unwrap();
+    link(&results.join("ledger.md"));
+    std::fs::write(results.join("table.md"), "| t |\n").unwrap();
+    link(&results.join("table.md"));
 }
 
 /// The README's zoo table is what `rdpg zoo --table zoo` makes of the committed entries'
