@@ -33,7 +33,9 @@ use rdpg_core::rng::NpRng;
 use serde::Deserialize;
 
 use crate::sweep::{Sweep, Trial};
-use crate::table::{iqm_difference, load_rows, seeds_word, Row, CI_MIN_SEEDS};
+use crate::table::{
+    iqm_difference, load_rows, seeds_word, Row, BOOTSTRAP_SEED, CI_MIN_SEEDS, DEFAULT_RESAMPLES,
+};
 
 /// Arguments of `rdpg claims`.
 #[derive(Debug, Args)]
@@ -44,9 +46,6 @@ pub struct ClaimsArgs {
     #[arg(long)]
     out: Option<PathBuf>,
 }
-
-/// Bootstrap resamples per pair (as `rdpg table`'s default).
-const RESAMPLES: usize = 10_000;
 
 /// A claims file.
 #[derive(Debug, Deserialize)]
@@ -124,7 +123,12 @@ fn measure(rows: &[Row], (better, da): (&str, usize), (worse, db): (&str, usize)
             verdict: Verdict::NotRun,
         };
     }
-    let (d, lo, hi) = iqm_difference(&a, &b, RESAMPLES, &mut NpRng::from_seed(0));
+    let (d, lo, hi) = iqm_difference(
+        &a,
+        &b,
+        DEFAULT_RESAMPLES,
+        &mut NpRng::from_seed(BOOTSTRAP_SEED),
+    );
     let verdict = if a.len() < da || b.len() < db {
         Verdict::Pending
     } else if da.min(db) < CI_MIN_SEEDS {
@@ -299,7 +303,8 @@ pub fn run(a: &ClaimsArgs) -> Result<()> {
     md += "\nEach claim as orderings of a sweep's rows, or of the rows of sweeps of one budget \
            (`better − worse`): the difference of the \
            interquartile means of their stock-reward tests (each seed's first 100 test \
-           episodes, pooled), its 95 % CI a percentile bootstrap over seeds. Holds: every \
+           episodes, pooled), its 95 % CI a percentile bootstrap over seeds, drawn as `rdpg table` \
+           draws it. Holds: every \
            interval above 0; does not hold: one below 0; unresolved: otherwise, once every \
            declared seed has run, and wherever the sweep declares fewer than 3 seeds (a \
            bootstrap over 2 seeds has 3 distinct resamples per row); pending: the numbers so \

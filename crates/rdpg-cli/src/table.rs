@@ -48,7 +48,12 @@ pub struct TableArgs {
     resamples: usize,
 }
 
-const DEFAULT_RESAMPLES: usize = 10_000;
+pub(crate) const DEFAULT_RESAMPLES: usize = 10_000;
+
+/// Every bootstrap interval draws from a generator of its own with this seed, so a row's
+/// interval and its difference to another row depend on their test episodes alone: the same
+/// in any table that holds them, in any order, and in `rdpg claims`.
+pub(crate) const BOOTSTRAP_SEED: u64 = 0;
 
 /// Episodes of the stock-reward test.
 const STOCK_TEST_EPISODES: usize = 100;
@@ -275,7 +280,6 @@ pub fn run(a: &TableArgs) -> Result<()> {
         bail!("--resamples must be at least 100");
     }
     let rows = load_rows(&a.inputs)?;
-    let mut rng = NpRng::from_seed(0);
     let versus = match &a.versus {
         Some(name) => Some(
             rows.iter()
@@ -344,7 +348,12 @@ pub fn run(a: &TableArgs) -> Result<()> {
         } else {
             (
                 iqm(&pooled),
-                bootstrap_ci(&tests, a.resamples, &mut rng, &iqm),
+                bootstrap_ci(
+                    &tests,
+                    a.resamples,
+                    &mut NpRng::from_seed(BOOTSTRAP_SEED),
+                    &iqm,
+                ),
             )
         };
         // Success over the first `n_success` test episodes of each seed.
@@ -382,7 +391,12 @@ pub fn run(a: &TableArgs) -> Result<()> {
         };
         let diff = versus.as_ref().filter(|_| !pooled.is_empty()).map(|v| {
             let vs: Vec<&[f64]> = v.iter().map(Vec::as_slice).collect();
-            iqm_difference(&tests, &vs, a.resamples, &mut rng)
+            iqm_difference(
+                &tests,
+                &vs,
+                a.resamples,
+                &mut NpRng::from_seed(BOOTSTRAP_SEED),
+            )
         });
         let per_seed: Vec<String> = means.iter().map(|x| format!("{x:.1}")).collect();
         let _ = write!(

@@ -2217,6 +2217,54 @@ fn committed_tables_regenerate_from_their_result_files() {
     );
 }
 
+/// A row's IQM interval and its difference to the reference row come from their own test
+/// episodes alone: the same whatever other rows the table holds and in which order, and the
+/// same in `rdpg claims` (the committed Hardcore rows, alone and after the wide row).
+#[test]
+fn a_rows_interval_is_the_same_in_any_table_and_in_claims() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = tmp("interval-everywhere");
+    std::fs::create_dir_all(&dir).unwrap();
+    let row_of = |inputs: &[&str], name: &str| -> Vec<String> {
+        let csv = dir.join(format!("{}.csv", inputs.len()));
+        ok(rdpg()
+            .current_dir(&root)
+            .arg("table")
+            .args(inputs)
+            .args(["--versus", "td3-paper", "--csv"])
+            .arg(&csv));
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(&format!("{name},")))
+            .unwrap_or_else(|| panic!("no row {name} in {text}"));
+        // iqm, iqm_lo, iqm_hi and versus_diff, versus_lo, versus_hi.
+        let f: Vec<&str> = line.split(',').collect();
+        [8, 9, 10, 17, 18, 19].map(|i| f[i].to_string()).to_vec()
+    };
+    let alone = row_of(&["results/hardcore-1m"], "rdpg-paper-injection");
+    let after = row_of(
+        &["results/hardcore-1m-wide", "results/hardcore-1m"],
+        "rdpg-paper-injection",
+    );
+    assert_eq!(alone, after);
+    let file = dir.join("claims.toml");
+    std::fs::write(
+        &file,
+        "[[claim]]\nclaim = \"c\"\npaper = \"p\"\nsweep = \"sweeps/hardcore-1m.toml\"\n\
+         better = [\"rdpg-paper-injection\"]\nworse = \"td3-paper\"\n",
+    )
+    .unwrap();
+    let out = ok(rdpg().current_dir(&root).arg("claims").arg(&file));
+    let x: Vec<f64> = alone[3..].iter().map(|v| v.parse().unwrap()).collect();
+    let pair = format!(
+        "rdpg-paper-injection − td3-paper: {:+.1} [{:+.1}, {:+.1}]",
+        x[0], x[1], x[2]
+    );
+    let out = String::from_utf8(out.stdout).unwrap();
+    assert!(out.contains(&pair), "{pair} not in {out}");
+}
+
 /// `rdpg claims`: a claim's verdict follows the CI of its IQM difference (the committed Table I
 /// rows: injection above RDPG holds, the reverse ordering does not hold), and a sweep of 2
 /// seeds gets none (fig6-bptt: its interval excludes 0, yet 2 seeds cannot decide); a row the
