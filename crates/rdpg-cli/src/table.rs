@@ -643,7 +643,10 @@ fn plot_rows(rows: &[Row], out: &Path) -> Result<()> {
                 })
                 .collect();
             Series {
-                name: format!("{} ({} seeds)", r.name, r.trials.len()),
+                name: match r.trials.len() {
+                    1 => format!("{} (1 seed)", r.name),
+                    n => format!("{} ({n} seeds)", r.name),
+                },
                 points: at_steps.iter().map(|(x, v)| (*x, mean_std(v).0)).collect(),
                 color: PALETTE[i % PALETTE.len()],
                 band: at_steps
